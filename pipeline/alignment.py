@@ -2126,6 +2126,60 @@ class TimeWindow:
         return ok
 
 
+def relabelled(aligned: AlignedStream, det_ids: np.ndarray, **changes) -> AlignedStream:
+    """``aligned`` with its detections' landmark ids ``det_ids`` (one per detection row, of the rows ``changes``
+    gives or of its own): ``landmark_ids`` and ``det_idx`` rebuilt from them (the one place they are), every other
+    field kept as it is but those in ``changes``. :func:`subset` cuts with it; ``observers.base.split_jumps``
+    gives a jumping landmark's later detections an id of their own with it."""
+    ids, det_idx = unique_inverse(np.asarray(det_ids))
+    return replace(
+        aligned,
+        landmark_ids=ids.astype(aligned.landmark_ids.dtype),
+        det_idx=det_idx.reshape(-1).astype(aligned.det_idx.dtype),
+        **changes,
+    )
+
+
+def subset(aligned: AlignedStream, rows: slice | np.ndarray, frames: slice | np.ndarray, **changes) -> AlignedStream:
+    """``aligned`` cut to the velocity samples ``rows`` and the detection frames ``frames``, each a slice (step 1;
+    its arrays views) or sorted indices: the samples' arrays and directions cut, the segment starts moved onto the
+    samples kept (a start whose sample went: the next sample kept; none at the first or past the last), the
+    detections of the frames kept with their landmark ids rebuilt (:func:`relabelled`), every field the cut does not
+    touch kept as it is (``replace``: a new ``AlignedStream`` listed them and lost those added later; session 32),
+    and the fields ``changes`` gives on top. :func:`windowed` and :func:`unbridged` cut with it."""
+    starts = aligned.segment_starts
+    if isinstance(rows, slice):
+        a, b, _ = rows.indices(aligned.vel_t_ns.shape[0])
+        starts = starts[(starts > a) & (starts < b)] - a
+    else:
+        at = np.searchsorted(rows, starts, side="left")
+        starts = at[(at > 0) & (at < rows.shape[0])].astype(np.int64)
+    d = aligned.directions
+    if d is not None:
+        d = DirectionSet(d.names, d.inertial, d.body[rows], d.weight[rows], d.gravity_norm)
+    off = aligned.det_offsets
+    if isinstance(frames, slice):
+        fa, fb, _ = frames.indices(aligned.det_t_ns.shape[0])
+        da = int(off[fa])
+        det_rows = slice(da, int(off[fb]))
+        det_offsets = off[fa : fb + 1] - da
+    else:
+        counts = np.diff(off)[frames]
+        det_offsets = np.r_[0, np.cumsum(counts)].astype(off.dtype)
+        det_rows = np.arange(det_offsets[-1], dtype=np.int64) - np.repeat(det_offsets[:-1] - off[frames], counts)
+    cut = dict(
+        vel_t_ns=aligned.vel_t_ns[rows],
+        omega=aligned.omega[rows],
+        velocity=aligned.velocity[rows],
+        directions=d,
+        segment_starts=starts,
+        det_t_ns=aligned.det_t_ns[frames],
+        det_offsets=det_offsets,
+        det_y=aligned.det_y[det_rows],
+    )
+    return relabelled(aligned, aligned.landmark_ids[aligned.det_idx[det_rows]], **(cut | changes))
+
+
 def unbridged(aligned: AlignedStream) -> AlignedStream:
     """``aligned`` with its bridged gaps (``AlignedStream.bridged_gaps``) split as any gap longer than
     ``limits.max_gap``: the time-base samples inside each dropped, a segment starting after it, the detection
@@ -2137,40 +2191,17 @@ def unbridged(aligned: AlignedStream) -> AlignedStream:
         return aligned
     t = aligned.vel_t_ns
     k = np.clip(np.searchsorted(b[:, 0], t, side="right") - 1, 0, None)
-    keep = ~((t > b[k, 0]) & (t < b[k, 1]))
-    rows = np.flatnonzero(keep)
+    rows = np.flatnonzero(~((t > b[k, 0]) & (t < b[k, 1])))
     t_new = t[rows]
     after = np.searchsorted(t_new, b[:, 1], side="left")
     after = after[(after > 0) & (after < t_new.shape[0])]
-    starts = np.union1d(np.searchsorted(t_new, t[aligned.segment_starts], side="left"), after).astype(np.int64)
-    lo, hi = t_new[after - 1], t_new[after]
-    j = np.clip(np.searchsorted(lo, aligned.det_t_ns, side="right") - 1, 0, None)
-    frames = np.flatnonzero(~((aligned.det_t_ns > lo[j]) & (aligned.det_t_ns < hi[j]))) if lo.size else None
-    det = {}
-    if frames is not None and frames.shape[0] < aligned.det_t_ns.shape[0]:
-        off = aligned.det_offsets
-        rows_det = np.concatenate([np.arange(off[f], off[f + 1]) for f in frames]).astype(np.int64)
-        ids, det_idx = np.unique(aligned.landmark_ids[aligned.det_idx[rows_det]], return_inverse=True)
-        det = dict(
-            det_t_ns=aligned.det_t_ns[frames],
-            det_offsets=np.r_[0, np.cumsum(np.diff(off)[frames])].astype(off.dtype),
-            det_idx=det_idx.reshape(-1).astype(aligned.det_idx.dtype),
-            det_y=aligned.det_y[rows_det],
-            landmark_ids=ids.astype(aligned.landmark_ids.dtype),
-        )
-    d = aligned.directions
-    if d is not None:
-        d = DirectionSet(d.names, d.inertial, d.body[rows], d.weight[rows], d.gravity_norm)
-    return replace(
-        aligned,
-        vel_t_ns=t_new,
-        omega=aligned.omega[rows],
-        velocity=aligned.velocity[rows],
-        directions=d,
-        segment_starts=starts,
-        bridged_gaps=np.zeros((0, 2), np.int64),
-        **det,
-    )
+    frames = slice(None)
+    if after.size:
+        lo, hi = t_new[after - 1], t_new[after]
+        j = np.clip(np.searchsorted(lo, aligned.det_t_ns, side="right") - 1, 0, None)
+        frames = np.flatnonzero(~((aligned.det_t_ns > lo[j]) & (aligned.det_t_ns < hi[j])))
+    cut = subset(aligned, rows, frames, bridged_gaps=np.zeros((0, 2), np.int64))
+    return replace(cut, segment_starts=np.union1d(cut.segment_starts, after).astype(np.int64))
 
 
 def time_window(start: float | None, end: float | None, t0_ns: int) -> TimeWindow | None:
@@ -2211,29 +2242,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
     a, b = int(rows[0]), int(rows[-1]) + 1
     # detection frames are in time order: those within the velocity samples kept
     fa, fb = np.searchsorted(aligned.det_t_ns, t[a], "left"), np.searchsorted(aligned.det_t_ns, t[b - 1], "right")
-    da, db = int(aligned.det_offsets[fa]), int(aligned.det_offsets[fb])
-    ids, det_idx = np.unique(aligned.landmark_ids[aligned.det_idx[da:db]], return_inverse=True)
-    d = aligned.directions
-    if d is not None:
-        d = DirectionSet(d.names, d.inertial, d.body[a:b], d.weight[a:b], d.gravity_norm)
-    starts = aligned.segment_starts
-    # replace, not a new AlignedStream: every field the window does not cut is kept as it is (a new one listed them
-    # and left out the later ones: body_from, base_frame, gyro_turn and gyro_moved_s were lost under a time window)
-    return replace(
-        aligned,
-        t0_ns=int(t[a]),
-        vel_t_ns=t[a:b],
-        omega=aligned.omega[a:b],
-        velocity=aligned.velocity[a:b],
-        det_t_ns=aligned.det_t_ns[fa:fb],
-        det_offsets=aligned.det_offsets[fa : fb + 1] - da,
-        det_idx=det_idx.reshape(-1).astype(aligned.det_idx.dtype),
-        det_y=aligned.det_y[da:db],
-        landmark_ids=ids.astype(aligned.landmark_ids.dtype),
-        notes=list(aligned.notes),
-        directions=d,
-        segment_starts=starts[(starts > a) & (starts < b)] - a,
-    )
+    return subset(aligned, slice(a, b), slice(int(fa), int(fb)), t0_ns=int(t[a]), notes=list(aligned.notes))
 
 
 def _bound(v: float | None) -> str:

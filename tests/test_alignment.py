@@ -324,12 +324,10 @@ def test_an_odometry_gap_the_gyro_recorded_through_is_bridged_up_to_max_odometry
         assert not [n for n in a.notes if "bridged" in n], a.notes
 
 
-def test_batch_splits_a_bridged_odometry_gap_as_the_split_run_did():
-    """batch carried across a bridged gap was the worse (a generated figure 8, odometry silent 7 s: 0.22 m against
-    0.009 m split; docs/benchmarks.md, session 33): ``unbridged`` gives it the stream the split run had, the
-    gyro's samples and the detection frames inside the gap dropped, a segment after it."""
+def _gap_detections() -> DetectionStream:
+    """Three landmarks seen every 0.5 s from 5.5 to 33.5 s of :func:`_silent_odometry`'s log."""
     t_det = np.arange(0.5, 29.0, 0.5)
-    det = DetectionStream(
+    return DetectionStream(
         "/fid",
         "camera",
         t_ns=(t_det * NS).astype(np.int64) + 5 * NS,
@@ -338,8 +336,14 @@ def test_batch_splits_a_bridged_odometry_gap_as_the_split_run_did():
         ids=np.tile([1, 2, 3], t_det.size),
         xyz=np.tile([[1.0, 0, 2], [0, 1.0, 2], [-1.0, 0, 2]], (t_det.size, 1)),
     )
-    bridged = _silent_odometry((10.0, 18.0), detections=det)
-    split = _silent_odometry((10.0, 18.0), detections=det, limits={"max_odometry_gap": None})
+
+
+def test_batch_splits_a_bridged_odometry_gap_as_the_split_run_did():
+    """batch carried across a bridged gap was the worse (a generated figure 8, odometry silent 7 s: 0.22 m against
+    0.009 m split; docs/benchmarks.md, session 33): ``unbridged`` gives it the stream the split run had, the
+    gyro's samples and the detection frames inside the gap dropped, a segment after it."""
+    bridged = _silent_odometry((10.0, 18.0), detections=_gap_detections())
+    split = _silent_odometry((10.0, 18.0), detections=_gap_detections(), limits={"max_odometry_gap": None})
     assert bridged.bridged_gaps.shape == (1, 2) and split.bridged_gaps.shape == (0, 2)
     got = unbridged(bridged)
     assert got.segment_starts.tolist() == split.segment_starts.tolist() and split.segment_starts.size == 1
@@ -347,6 +351,55 @@ def test_batch_splits_a_bridged_odometry_gap_as_the_split_run_did():
         assert np.array_equal(getattr(got, name), getattr(split, name)), name
     assert got.det_t_ns.size < bridged.det_t_ns.size
     assert unbridged(split) is split
+
+
+def test_every_cut_of_an_aligned_stream_keeps_the_fields_it_does_not_cut():
+    """The three cuts of an AlignedStream (``windowed``, ``unbridged``, ``observers.base.split_jumps``) go through
+    ``alignment.subset`` / ``relabelled``: every field none of them cuts is the input's own object, a field added to
+    the dataclass later included (a guard: ``windowed`` once built a new AlignedStream from a list of fields and lost
+    those added after it, session 32; at session 34's base all three kept them)."""
+    from dataclasses import fields, replace
+
+    from slamobs.pipeline.alignment import time_window, windowed
+    from slamobs.pipeline.observers.base import split_jumps
+
+    a = replace(
+        _silent_odometry((10.0, 18.0), detections=_gap_detections()),
+        base_frame={"frame": "base_link"},
+        gyro_turn={"turn": 1},
+        gyro_moved_s=0.1,
+    )
+    assert a.bridged_gaps.shape == (1, 2) and a.segment_starts.size == 0
+    cut = {"vel_t_ns", "omega", "velocity", "directions", "segment_starts", "det_t_ns", "det_offsets", "det_y"}
+    ids = {"det_idx", "landmark_ids"}
+    t_mid = int(a.det_t_ns[a.det_t_ns.size // 2])
+    for name, out, changed in (
+        ("windowed", windowed(a, time_window(2.0, 25.0, a.t0_ns), "log"), cut | ids | {"t0_ns", "notes"}),
+        ("unbridged", unbridged(a), cut | ids | {"bridged_gaps"}),
+        ("split_jumps", split_jumps(a, [{"id": 2, "t_ns": t_mid}], np.empty(0, np.int64)), ids),
+    ):
+        assert out.vel_t_ns.size < a.vel_t_ns.size or out.landmark_ids.size > a.landmark_ids.size, name
+        for f in fields(a):
+            if f.name not in changed:
+                assert getattr(out, f.name) is getattr(a, f.name), (name, f.name)
+
+
+def test_a_subset_by_slices_is_the_subset_by_their_indices():
+    """``alignment.subset``'s two cases (slices, whose arrays are views; sorted indices) cut alike: the same
+    samples, segment starts moved onto them, detections and landmark ids rebuilt from those kept."""
+    from dataclasses import fields
+
+    from slamobs.pipeline.alignment import subset
+
+    a = unbridged(_silent_odometry((10.0, 18.0), detections=_gap_detections()))
+    assert a.segment_starts.size == 1
+    by_slice = subset(a, slice(500, 1500), slice(10, 30))
+    by_index = subset(a, np.arange(500, 1500), np.arange(10, 30))
+    assert by_slice.segment_starts.tolist() == [int(a.segment_starts[0]) - 500]
+    assert by_slice.det_t_ns.size == 20 and by_slice.det_offsets[0] == 0 and by_slice.landmark_ids.tolist() == [1, 2, 3]
+    for f in fields(a):
+        x, y = getattr(by_slice, f.name), getattr(by_index, f.name)
+        assert np.array_equal(x, y) if isinstance(x, np.ndarray) else x == y or x is y, f.name
 
 
 def test_a_velocity_stream_repeating_stamps_with_other_values_is_named():

@@ -23,12 +23,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
-from slamobs.pipeline.alignment import AlignedStream, stream_topics
+from slamobs.pipeline.alignment import AlignedStream, relabelled, stream_topics
 from slamobs.pipeline.blocks import id_time_order, row_norms3, row_squares3
 from slamobs.pipeline.errors import BadInput, GainError
 from slamobs.pipeline.noise import chi2_quantile
@@ -554,12 +554,7 @@ def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) ->
                 later |= (t_det >= a) & (t_det <= b)
         ids[(aligned.det_ids == j["id"]) & later] = next_id
         next_id += 1
-    landmark_ids, det_idx = np.unique(ids, return_inverse=True)
-    return replace(
-        aligned,
-        landmark_ids=landmark_ids.astype(aligned.landmark_ids.dtype),
-        det_idx=det_idx.astype(aligned.det_idx.dtype),
-    )
+    return relabelled(aligned, ids)
 
 
 def split_places(jumps: list[dict], ids: np.ndarray, xyz: np.ndarray, cov: np.ndarray | None) -> None:
