@@ -640,6 +640,29 @@ def _jl_row(a, cj, cl, kk, k2, v0, v1, v2):
     return j0 * v0 + j1 * v1 + j2 * v2
 
 
+@subroutine(types.UniTuple(types.float64, 3))
+def floor_tilt_row(u, t, n):
+    """A floor's tilt row: the Jacobian ``u × t`` of ``tᵀu`` (the up axis ``u`` along the floor's tangent ``t``)
+    in a rotation step ``ξ`` with ``δu = ξ × u``, less its part along the floor's normal ``n`` (turning about the
+    normal tilts the up axis no less: no heading in the tilt rows); ``u``, ``t``, ``n`` 3-vectors in the step's
+    frame. riekf's floor pseudo-measurements (``observers.riekf._planar_update``: the world frame, ``u = R̂e3``) and
+    the smoother's floor terms (``smoother.graph.floor_terms``: the body frame, ``u = e3``, ``Rᵀt``, ``Rᵀn``)."""
+    a0 = u[1] * t[2] - u[2] * t[1]
+    a1 = u[2] * t[0] - u[0] * t[2]
+    a2 = u[0] * t[1] - u[1] * t[0]
+    d = a0 * n[0] + a1 * n[1] + a2 * n[2]
+    return a0 - d * n[0], a1 - d * n[1], a2 - d * n[2]
+
+
+@njit(cache=True)
+def floor_tilt_rows(u, t, n):
+    """:func:`floor_tilt_row` of each row of ``(K, 3)`` arrays ``u``, ``t``, ``n``: ``(K, 3)``."""
+    out = np.empty((u.shape[0], 3))
+    for k in range(u.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2] = floor_tilt_row(u[k], t[k], n[k])
+    return out
+
+
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991, "Least-squares estimation of
     transformation parameters between two point patterns"), with ``s = 1`` unless ``with_scale``.

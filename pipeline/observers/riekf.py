@@ -192,7 +192,7 @@ from slamobs.pipeline.cholesky import cholesky_lower
 from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
-from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
+from slamobs.pipeline.lie import floor_tilt_row, project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.noise import format_level, nees_bounds
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
@@ -940,19 +940,13 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     u = np.empty(3)
     for c in range(3):
         u[c] = r_hat[c, 2]
-    for k in range(2):
+    n = plane[1:4]
+    for k in range(2):  # −tᵀ[u]×ξ = (u × t)·ξ, less its heading about n (the smoother's floor rows' too)
         t = plane[5 + 3 * k : 8 + 3 * k]
         z[k] = t[0] * u[0] + t[1] * u[1] + t[2] * u[2]
-        h[k, 0] = u[1] * t[2] - u[2] * t[1]  # −tᵀ[u]×ξ = (u × t)·ξ
-        h[k, 1] = u[2] * t[0] - u[0] * t[2]
-        h[k, 2] = u[0] * t[1] - u[1] * t[0]
-    n = plane[1:4]
-    for k in range(2):  # no heading about n in the tilt rows: turning about the normal tilts the up axis no less
-        a = h[k, 0] * n[0] + h[k, 1] * n[1] + h[k, 2] * n[2]
-        for c in range(3):
-            h[k, c] -= a * n[c]
+        h[k, 0], h[k, 1], h[k, 2] = floor_tilt_row(u, t, n)
     z[2] = n[0] * p_hat[0] + n[1] * p_hat[1] + n[2] * p_hat[2] - plane[4]
-    h[2, 0] = p_hat[1] * n[2] - p_hat[2] * n[1]  # −nᵀ[P̂]×ξ = (P̂ × n)·ξ
+    h[2, 0] = p_hat[1] * n[2] - p_hat[2] * n[1]  # −nᵀ[P̂]×ξ = (P̂ × n)·ξ: the invariant error's, not graph's
     h[2, 1] = p_hat[2] * n[0] - p_hat[0] * n[2]
     h[2, 2] = p_hat[0] * n[1] - p_hat[1] * n[0]
     for c in range(3):

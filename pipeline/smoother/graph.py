@@ -33,6 +33,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from slamobs.pipeline.lie import floor_tilt_rows
 
 #: Standard deviation of the gauge prior on the anchor keyframe (rad and m: effectively a constraint).
 GAUGE_SIGMA = 1e-6
@@ -253,11 +254,11 @@ def floor_terms(plane: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np
     r[:, :2] = rot[:, :, 2] @ tangents.T
     r[:, 2] = pos @ n - plane[4]
     nb = np.einsum("kji,j->ki", rot, n)  # Rᵀn
-    for row in range(2):
-        tb = np.einsum("kji,j->ki", rot, tangents[row])  # Rᵀt
-        j = np.cross(np.array([0.0, 0.0, 1.0]), tb)
-        jac[:, row, :3] = j - np.einsum("ki,ki->k", j, nb)[:, None] * nb
-    jac[:, 2, 3:] = nb
+    up = np.zeros((k, 3))
+    up[:, 2] = 1.0
+    for row in range(2):  # e3 × Rᵀt less its heading about Rᵀn: riekf's rows in the body frame
+        jac[:, row, :3] = floor_tilt_rows(up, np.einsum("kji,j->ki", rot, tangents[row]), nb)
+    jac[:, 2, 3:] = nb  # no rotation part: P + Rρ moves with ρ alone (riekf's invariant error adds P̂ × n)
     return r, jac
 
 
