@@ -32,8 +32,8 @@ from slamobs.pipeline.batch.identity import content_hash, run_id_for, run_key
 from slamobs.pipeline.batch.ledger import SUMMARY_SCHEMA, Ledger, meta_dir
 from slamobs.pipeline.batch.runner import config_hash
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.writers import FLOAT_BITS, parquet_options, round_mantissa
-from slamobs.schemas import TABLES, arrow_schema
+from slamobs.pipeline.writers import FLOAT_BITS, parquet_options, round_mantissa, round_step
+from slamobs.schemas import TABLES, arrow_schema, fixed_steps
 
 ROWS_PER_TABLE = {"poses": 1.0, "biases": 1.0, "landmark_tracks": 0.5, "innovations": 0.5, "landmarks": None}
 
@@ -48,8 +48,11 @@ def _table(name: str, n: int, rng: np.random.Generator):
             cols.append(pa.array(np.arange(n, dtype=np.int64) * 50_000_000, f.type))
         elif pa.types.is_integer(f.type):
             cols.append(pa.array(rng.integers(0, 30, n), f.type))
-        else:  # a smooth series rounded like the real writer's (output.float_bits), so files have real sizes
-            cols.append(pa.array(round_mantissa(np.cumsum(rng.normal(scale=0.01, size=n)), FLOAT_BITS), f.type))
+        else:  # a smooth series rounded like the real writer's (step or float_bits), so files have real sizes
+            v = np.cumsum(rng.normal(scale=0.01, size=n))
+            steps = fixed_steps(name)
+            v = round_step(v, steps[f.name]) if f.name in steps else round_mantissa(v, FLOAT_BITS)
+            cols.append(pa.array(v, f.type))
     return pa.Table.from_arrays(cols, schema=schema)
 
 

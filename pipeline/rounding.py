@@ -1,6 +1,7 @@
-"""Float outputs rounded to fewer mantissa bits (:func:`slamobs.pipeline.writers.round_mantissa`) in one
-compiled pass over a long column: the same integer operations on the bits as the array code, so the same bits,
-without its masks, gathers and temporaries (half of a long run's write time). Imported by the writers only for
+"""Float outputs rounded to fewer mantissa bits (:func:`slamobs.pipeline.writers.round_mantissa`) or to a fixed
+step (:func:`slamobs.pipeline.writers.round_step`) in one compiled pass over a long column: the same operations
+as the array code, so the same bits, without its masks, gathers and temporaries (half of a long run's write
+time). Imported by the writers only for
 long columns, so that what writes a few rows (stats, compare, export) does not import numba.
 """
 
@@ -44,3 +45,17 @@ def round_bits(a, bits, finest, use_finest):  # pragma: no cover - compiled
         if r & _EXPONENT == _EXPONENT:
             r = b & keep
         u[k] = r
+
+
+@njit(cache=True)
+def round_step_into(a, exp):  # pragma: no cover - compiled
+    """``a`` (float64, 1-D, contiguous) rounded in place to the nearest multiple of ``2**exp`` (ties to even), as
+    :func:`slamobs.pipeline.writers.round_step` does with arrays: the same bits. NaN, ±Inf and the values already
+    a multiple (``|x| >= 2**(52 + exp)``) are kept; -0.0 becomes 0.0."""
+    step = 2.0**exp
+    inv = 2.0**-exp
+    whole = 2.0 ** (52 + exp)
+    for k in range(a.shape[0]):
+        v = a[k]
+        if abs(v) < whole:
+            a[k] = np.rint(v * inv) * step + 0.0

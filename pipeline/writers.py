@@ -4,11 +4,13 @@ Tables are written a stretch of rows at a time (:class:`TableWriter`, one row gr
 multi-hour run never holds its histories. Encodings suit the data: float columns are byte-stream split
 (the sign/exponent/high-mantissa bytes of a smooth series compress well, the low mantissa bytes are
 noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all zstd. Float values are
-rounded to ``float_bits`` significant mantissa bits before writing (default 28, a relative rounding of at most
-2**-29 ≈ 1.9e-9: 2 µm at 1 km): the dropped low bits are the incompressible part of a noisy estimate, and they
-are far below any observer's accuracy. A length (a column in metres) keeps more bits where it is far from the
-origin, so that its rounding step is never coarser than 2**-20 m (about 1 µm): a pose in a UTM or ECEF truth
-frame (4,690 km) would otherwise be stored in steps of 1.6 cm. ``float_bits=52`` writes every bit.
+rounded before writing: the dropped low bits are the incompressible part of a noisy estimate, far below any
+estimator's accuracy. A column with a fixed step (``schemas.fixed_steps``: every length, 2**-20 m ≈ 0.95 µm near
+the origin and in a UTM or ECEF frame alike; the quaternions 2**-24; the biases 2**-26) is rounded to a multiple
+of it (:func:`round_step`); each ``float_bits`` above the default 28 halves the step, each below doubles it. The
+other columns keep ``float_bits`` significant mantissa bits (a relative rounding of at most 2**-29 ≈ 1.9e-9); the
+uncertainty columns at most their schema's own ``float_bits`` (16), and in metres never a step coarser than
+2**-20 m. ``float_bits=52`` writes every bit.
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from slamobs.pipeline.paths import (
     read_manifest,
     temporary_prefix,
 )
-from slamobs.schemas import DEFAULT_FLOAT_BITS, arrow_schema
+from slamobs.schemas import DEFAULT_FLOAT_BITS, LENGTH_STEP_EXP, arrow_schema, fixed_steps
 
 if TYPE_CHECKING:  # importing observers (numba) is for runs: stats, compare and export write without it
     from slamobs.pipeline.observers.base import ObserverResult
@@ -60,9 +62,6 @@ COMPRESSION_LEVEL = -1
 METADATA_KEY = b"slamobs"
 FLOAT_BITS = DEFAULT_FLOAT_BITS
 _EXPONENT = np.uint64(0x7FF0_0000_0000_0000)
-#: Coarsest rounding step of a length, as a power of two in metres (2**-20 m ≈ 0.95 µm): below 512 m from the
-#: origin ``float_bits`` (28) is finer than that already, farther out a value keeps the bits it needs.
-LENGTH_STEP_EXP = -20
 
 
 #: Axes of the pose error ``(δθ, δp)`` in the order of the pose covariance (``cov_<a>_<b>`` columns, a ≤ b).
@@ -226,8 +225,9 @@ def landmark_table(
     }
 
 
-#: Columns at least this long are rounded by the compiled :func:`.rounding.round_bits` (a long run's stretches
-#: are 131 072 rows); shorter ones by the array code: a short log's first run does not compile it.
+#: Columns at least this long are rounded by the compiled :func:`.rounding.round_bits` and
+#: :func:`.rounding.round_step_into` (a long run's stretches are 131 072 rows); shorter ones by the array code: a
+#: short log's first run does not compile them.
 ROUND_KERNEL_ROWS = 65_536
 
 
@@ -269,6 +269,28 @@ def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> 
     overflow = rounded & _EXPONENT == _EXPONENT  # rounded up into Inf
     rounded[overflow] = bits_in[overflow] & (keep[overflow] if np.ndim(keep) else keep)
     u[finite] = rounded
+    return a
+
+
+def round_step(values: np.ndarray, exp: int) -> np.ndarray:
+    """``values`` (float64) rounded to the nearest multiple of ``2**exp`` (ties to even), as a new array: an
+    absolute error at most ``2**(exp - 1)`` whatever the value's size; NaN and ±Inf are kept, a value already a
+    multiple (``|x| >= 2**(52 + exp)``) is left as it is, and -0.0 becomes 0.0. Scaling by a power of two is
+    exact, so the result is the multiple itself, and its mantissa's low bits are zero."""
+    if np.ndim(values) == 1 and len(values) >= ROUND_KERNEL_ROWS:  # one compiled pass, the same bits
+        from slamobs.pipeline.rounding import round_step_into
+
+        a = np.array(values, dtype=np.float64)
+        round_step_into(a, int(exp))
+        return a
+    with np.errstate(over="ignore"):  # a value past 2**(1024 + exp) is put back below
+        a = np.multiply(values, 2.0**-exp, dtype=np.float64)  # a new array: callers' arrays are not changed
+    np.rint(a, out=a)
+    a *= 2.0**exp
+    a += 0.0  # -0.0 (a small negative value rounded to zero) reads 0.0
+    whole = ~(np.abs(values) < 2.0 ** (52 + exp))  # already a multiple of the step, or NaN / ±Inf
+    if whole.any():
+        a[whole] = np.asarray(values, dtype=np.float64)[whole]
     return a
 
 
@@ -365,7 +387,12 @@ class TableWriter:
         rows = len(next(iter(columns.values()))) if columns else 0
         # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element;
         # a nullable column the estimator has no values for (the observers' uncertainty) is all null
-        values = {f.name: self._values(columns[f.name], f) for f in schema if f.name in columns or not f.nullable}
+        steps = fixed_steps(name)
+        values = {
+            f.name: self._values(columns[f.name], f, steps.get(f.name))
+            for f in schema
+            if f.name in columns or not f.nullable
+        }
         arrays = [
             _arrow_array(values[f.name], f.type) if f.name in values else self._null_column(rows, f.type)
             for f in schema
@@ -416,8 +443,10 @@ class TableWriter:
             self._nulls[key] = pa.nulls(rows, kind)
         return self._nulls[key]
 
-    def _values(self, column: np.ndarray, field: pa.Field) -> np.ndarray:
+    def _values(self, column: np.ndarray, field: pa.Field, step_exp: int | None) -> np.ndarray:
         meta = field.metadata or {}
+        if step_exp is not None and self.float_bits < 52:  # a fixed step, finer by a bit for each bit above 28
+            return round_step(column, step_exp + DEFAULT_FLOAT_BITS - self.float_bits)
         bits = min(self.float_bits, int(meta.get(b"float_bits", 52)))  # a schema may keep fewer (uncertainty)
         if pa.types.is_float64(field.type) and bits < 52:
             finest = LENGTH_STEP_EXP if meta.get(b"unit") == b"m" else None

@@ -17,12 +17,29 @@ OPTIONAL_TABLES = ("jumps", "tag_detections", "poses_aligned", "landmarks_aligne
 #: Significant mantissa bits kept in float outputs (pipeline.writers.round_mantissa; 52 = float64 exactly); the
 #: default of ``output.float_bits`` (pipeline.config), here so that writing outputs never imports the config.
 DEFAULT_FLOAT_BITS = 28
+#: A length's rounding step at the default ``float_bits``, as a power of two in metres (2**-20 m ≈ 0.95 µm, the
+#: error at most half that, near the origin and in a UTM or ECEF frame alike): every column in metres but the
+#: uncertainty columns (their own ``float_bits``) has this fixed step; other columns may state one (``step_exp``).
+LENGTH_STEP_EXP = -20
 
 
 @cache
 def table_spec(name: str) -> dict:
     """The JSON description of output table ``name``."""
     return json.loads((HERE / f"{name}.json").read_text())
+
+
+@cache
+def fixed_steps(name: str) -> dict[str, int]:
+    """The float columns of table ``name`` stored at a fixed step, as the step's power of two at
+    :data:`DEFAULT_FLOAT_BITS` (pipeline.writers.round_step): the entry's ``step_exp``, else a length's
+    :data:`LENGTH_STEP_EXP`; the uncertainty columns (``float_bits`` in their entry) are rounded relative to
+    their value instead."""
+    return {
+        f["name"]: f.get("step_exp", LENGTH_STEP_EXP)
+        for f in table_spec(name)["fields"]
+        if f["type"] == "float64" and "float_bits" not in f and ("step_exp" in f or f["unit"] == "m")
+    }
 
 
 def arrow_schema(name: str):

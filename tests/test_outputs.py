@@ -171,7 +171,8 @@ def test_every_column_is_zstd_with_its_encoding_and_reads_back_bit_for_bit(tmp_p
     """The codec and encodings kept for the hour's tables (docs/benchmarks.md, session 20): every column chunk
     zstd, floats byte-stream split, ``*_ns`` delta-packed, ids dictionary-encoded; pandas and
     pyarrow read the written (rounded) values back bit for bit."""
-    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
+    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa, round_step
+    from slamobs.schemas import fixed_steps
 
     res = _result(k=300, m=90)
     write_result(tmp_path, res, {"run": 1})
@@ -190,9 +191,10 @@ def test_every_column_is_zstd_with_its_encoding_and_reads_back_bit_for_bit(tmp_p
             if field.name not in columns:
                 continue
             values = np.asarray(columns[field.name])
-            if values.dtype == np.float64:
-                unit = (field.metadata or {}).get(b"unit")
-                values = round_mantissa(values, FLOAT_BITS, -20 if unit == b"m" else None)
+            if values.dtype == np.float64 and field.name in fixed_steps(name):
+                values = round_step(values, fixed_steps(name)[field.name])
+            elif values.dtype == np.float64:
+                values = round_mantissa(values, FLOAT_BITS)
             assert table.column(field.name).to_numpy().tobytes() == values.tobytes(), (name, field.name)
             assert frame[field.name].to_numpy().tobytes() == values.tobytes(), (name, field.name)
 
@@ -237,25 +239,81 @@ def test_round_mantissa_keeps_a_fine_enough_step_far_from_the_origin():
 
 
 def test_positions_in_a_far_away_frame_keep_micrometres(tmp_path):
-    """A pose in a UTM-like truth frame (4,690 km from the origin) is stored to 1 µm (in 1.6 cm steps before);
-    columns that are not lengths (quaternions) keep the plain ``float_bits`` rounding."""
-    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
+    """A pose in a UTM-like truth frame (4,690 km from the origin) is stored to 1 µm, as near the origin: a length's
+    step is 2**-20 m wherever it is (relative rounding on 28 bits would store it in 1.6 cm steps)."""
+    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa, round_step
 
     res = _result(k=5000, m=40)
     res.position[:] = res.position * 30.0 + np.array([330_000.0, 4_690_000.0, 20.0])
     write_result(tmp_path, res, {})
     poses = pd.read_parquet(tmp_path / "poses.parquet")
     assert np.max(np.abs(poses[["x", "y", "z"]].to_numpy() - res.position)) <= 2.0**-21
-    assert np.array_equal(poses["z"].to_numpy(), round_mantissa(res.position[:, 2], FLOAT_BITS))  # near: as before
-    assert not np.array_equal(poses["y"].to_numpy(), round_mantissa(res.position[:, 1], FLOAT_BITS))
-    q = poses[["qx", "qy", "qz", "qw"]].to_numpy()
-    assert np.array_equal(q, round_mantissa(q, FLOAT_BITS))
+    assert np.max(np.abs(round_mantissa(res.position[:, 1], FLOAT_BITS) - res.position[:, 1])) > 1e-3
+    for c, values in zip("xyz", res.position.T, strict=True):
+        assert np.array_equal(poses[c].to_numpy(), round_step(values, -20))  # far and near alike
+
+
+def test_round_step_rounds_to_a_multiple_and_keeps_special_values():
+    from slamobs.pipeline.writers import round_step
+
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=100_000) * 10.0 ** rng.integers(-9, 9, size=100_000)
+    for exp in (-26, -20, 3):
+        r = round_step(x, exp)
+        assert np.max(np.abs(r - x)) <= 2.0 ** (exp - 1)
+        assert np.array_equal(r / 2.0**exp, np.round(r / 2.0**exp))  # multiples of the step
+        assert np.array_equal(round_step(r, exp), r)  # idempotent
+    special = np.array([0.0, np.inf, -np.inf, 2.0**60 + 2.0**8, -np.finfo(float).max])
+    assert np.array_equal(round_step(special, -20), special)  # multiples already, or not finite
+    assert np.isnan(round_step(np.array([np.nan]), -20)).all()
+    tiny = round_step(np.array([-1e-9, -0.0]), -20)
+    assert np.array_equal(tiny, [0.0, 0.0]) and not np.signbit(tiny).any()  # a small negative reads 0.0, not -0.0
+    assert round_step(x, -20) is not x
+
+
+def test_every_float_column_is_within_its_stated_rounding(tmp_path):
+    """Every float column of every table written at the default ``float_bits`` is within its stated bound of the
+    value written with ``float_bits=52`` (every bit): a fixed step ``2**e`` (schemas.fixed_steps: lengths
+    2**-20 m, quaternions 2**-24, biases 2**-26) within ``2**(e-1)`` and a multiple of it; the others within a
+    relative ``2**-(float_bits+1)``. ``float_bits=30`` makes each step four times finer."""
+    from slamobs.schemas import fixed_steps
+
+    res = _result(k=3000, m=900)
+    res.position[:] *= 20.0
+    res.gyro_bias[:] *= 0.01
+    res.vel_bias[:] *= 0.05
+    res.innovation[:] *= 0.02
+    dirs = {bits: tmp_path / str(bits) for bits in (52, 28, 30)}
+    for bits, out in dirs.items():
+        out.mkdir()
+        write_result(out, res, {}, float_bits=bits)
+    checked = set()
+    for name in TABLES:
+        exact = pd.read_parquet(dirs[52] / f"{name}.parquet")
+        steps = fixed_steps(name)
+        for f in table_spec(name)["fields"]:
+            if f["type"] != "float64" or exact[f["name"]].isna().all():
+                continue
+            x = exact[f["name"]].to_numpy()
+            for bits, shift in ((28, 0), (30, 2)):
+                r = pd.read_parquet(dirs[bits] / f"{name}.parquet")[f["name"]].to_numpy()
+                if f["name"] in steps:
+                    step = 2.0 ** (steps[f["name"]] - shift)
+                    assert np.max(np.abs(r - x)) <= step / 2, (name, f["name"], bits)
+                    assert np.array_equal(np.round(r / step) * step, r), (name, f["name"])  # multiples of the step
+                else:
+                    assert np.all(np.abs(r - x) <= np.abs(x) * 2.0 ** -(bits + 1)), (name, f["name"], bits)
+                assert not np.array_equal(r, x), (name, f["name"])  # rounded at all
+            checked.add((name, f["name"]))
+    assert {("poses", "x"), ("poses", "qw"), ("biases", "gyro_bias_z"), ("innovations", "e_norm")} <= checked
+    assert {("landmark_tracks", "z"), ("landmarks", "x"), ("biases", "vel_bias_x")} <= checked
 
 
 def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
-    """Default output keeps FLOAT_BITS significant bits (far below estimation accuracy, much smaller files);
-    ``float_bits=52`` keeps every bit."""
-    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
+    """Default output rounds a length to 2**-20 m and a quaternion to its schema's step (far below estimation
+    accuracy, much smaller files); ``float_bits=52`` keeps every bit."""
+    from slamobs.pipeline.writers import round_step
+    from slamobs.schemas import LENGTH_STEP_EXP, fixed_steps
 
     res = _result(k=20_000, m=100)
     exact, rounded = tmp_path / "exact", tmp_path / "rounded"
@@ -264,7 +322,8 @@ def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
     write_result(rounded, res, {})
     a, b = pd.read_parquet(exact / "poses.parquet"), pd.read_parquet(rounded / "poses.parquet")
     assert np.array_equal(a["x"].to_numpy(), res.position[:, 0])
-    assert np.array_equal(b["x"].to_numpy(), round_mantissa(res.position[:, 0], FLOAT_BITS))
+    assert np.array_equal(b["x"].to_numpy(), round_step(res.position[:, 0], LENGTH_STEP_EXP))
+    assert np.array_equal(b["qw"].to_numpy(), round_step(a["qw"].to_numpy(), fixed_steps("poses")["qw"]))
     assert np.array_equal(a["t_ns"].to_numpy(), b["t_ns"].to_numpy())
     assert (rounded / "poses.parquet").stat().st_size < 0.8 * (exact / "poses.parquet").stat().st_size
 
@@ -360,6 +419,13 @@ def test_compiled_rounding_gives_the_bits_of_the_array_code(monkeypatch):
                 array = writers.round_mantissa(values, bits, finest)
                 assert np.array_equal(compiled.view(np.uint64), array.view(np.uint64)), (bits, finest)
                 assert compiled is not values
+        for exp in (-50, -30, -20, 0, 7, 40):  # a fixed step: round_step (float_bits 1..51: -44..7)
+            monkeypatch.setattr(writers, "ROUND_KERNEL_ROWS", 1)
+            compiled = writers.round_step(values, exp)
+            monkeypatch.setattr(writers, "ROUND_KERNEL_ROWS", 1 << 62)
+            array = writers.round_step(values, exp)
+            assert np.array_equal(compiled.view(np.uint64), array.view(np.uint64)), exp
+            assert compiled is not values
 
 
 def test_tables_written_on_two_lanes_are_the_bytes_of_one(tmp_path, monkeypatch):
