@@ -433,7 +433,12 @@ def run(log: Path, estimator: str, out: Path, noise: dict | None) -> dict:
         run_log(log, out, observer=estimator, config=cfg, force=True)
     except Exception as exc:  # an error is a result of the sweep
         return {"error": str(exc)[:120]}
-    meta, report = json.loads((out / "run.json").read_text()), json.loads((out / "report.json").read_text())
+    meta = json.loads((out / "run.json").read_text())
+    if not (out / "report.json").is_file():  # the run stands, its error report does not (the note says why)
+        why = next((n for n in meta.get("notes") or [] if n.startswith("no error report")), "no error report")
+        shutil.rmtree(out, ignore_errors=True)
+        return {"error": why[:120], "notes": meta.get("notes") or []}
+    report = json.loads((out / "report.json").read_text())
     shutil.rmtree(out, ignore_errors=True)
     conv, nees = report.get("convergence") or {}, (report.get("uncertainty") or {}).get("position") or {}
     verdict = "lost" if conv.get("lost") else "coarse" if conv.get("coarse") else "no" if conv.get("growing") else None
