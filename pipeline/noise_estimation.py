@@ -44,12 +44,6 @@ OUTLIER_SIGMAS = 4.0
 #: log's heavy tail (MR.CLAM's slowly varying range errors and mis-associations, 10-100x) stays with the 4 σ rounds
 #: (at 10x or 30x the laws of MR.CLAM 6-r2, 7-r3, 7-r4 moved and their riekf/batch APE by -24 to +41 %).
 GROSS_FACTOR, GROSS_BINS = 100.0, 10
-#: The 4 σ rounds go on until the inliers no longer change, at most this many: with 5 % of the detections moved 1-3
-#: m (each in up to three triplets) the first fit is several times too wide and three rounds left it 1.5-2x the
-#: truth (generated hand-held rig and flight, seed=3654 and seed=3655: σ at 10 m 0.14 m against 0.09; riekf 1.10x
-#: and 1.29x its run with the true law); until stable, 0.97x and 1.04x the truth (docs/benchmarks.md, "Logs nobody
-#: has run yet, round 6").
-MAX_ROUNDS = 30
 #: Bootstrap resamples of the detection-noise fit.
 BOOTSTRAP = 20
 #: At most this many triplets are fitted (a uniform subsample of longer logs).
@@ -434,12 +428,12 @@ def _not_gross(tri: Triplets) -> np.ndarray:
 
 
 def _fit_law(
-    tri: Triplets, power: int, theta0: np.ndarray, rounds: int = MAX_ROUNDS, ratio: float = 1.0
+    tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3, ratio: float = 1.0
 ) -> tuple[np.ndarray, float, np.ndarray]:
     """Variance-component estimation of one law: Fisher scoring on the triplets that are not gross outliers
     (:func:`_not_gross`), then outliers beyond ``OUTLIER_SIGMAS`` dropped (:func:`_inliers`, at the range/bearing
-    ``ratio``) and the fit repeated until they no longer change, at most ``rounds`` fits; the coefficients (≥ 0),
-    the mean log-likelihood per component and the inlier mask."""
+    ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean log-likelihood per component and the inlier
+    mask."""
     theta = np.maximum(np.asarray(theta0, float), 0.0)
     e2 = tri.e * tri.e  # (K, 3)
     inl = _not_gross(tri)
@@ -459,9 +453,7 @@ def _fit_law(
             if done:
                 break
         v, _ = _variance(theta, tri, power)
-        inl, before = _inliers(tri, e2, v, ratio), inl
-        if np.array_equal(inl, before):
-            break
+        inl = _inliers(tri, e2, v, ratio)
     v, _ = _variance(theta, tri, power)
     ll = float(np.mean(-0.5 * (np.log(v[inl])[:, None] + e2[inl] / v[inl][:, None])))
     return theta, ll, inl
