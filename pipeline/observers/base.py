@@ -76,7 +76,7 @@ JUMP_SPLITS = 256
 #: detections are the other place's visits (:func:`far_spans`), each given the new id.
 JUMP_RUN = 9
 #: Such a stretch is a jump also where no one change point is (:func:`_best_split` needs three quarters of a side
-#: far): a second tag with the id seen once mid-log for 10 s, 86 detections 155x the run's median between 29 and 109
+#: far): a second tag with the id seen once mid-log for 6 s, 86 detections 156x the run's median between 38 and 100
 #: near ones (a generated hand-held rig, seed=3653: riekf said it lost the log while 0.06 m off, batch 1.89 m
 #: against 0.055 with the true levels, no landmark named; docs/benchmarks.md, "Logs nobody has run yet, round 6"),
 #: when the stretches' median is over ``JUMP_RATIO`` times the run's, as a change point's far side must be (TagSLAM
@@ -532,8 +532,6 @@ def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list
         else:
             continue
         bad = bad[norms[bad] > JUMP_RATIO * median]  # its far detections: the span over which the others must be calm
-        if not bad.size:
-            continue
         during = (t_ns >= t_ns[bad].min()) & (t_ns <= t_ns[bad].max()) & (ids != lid)
         if np.count_nonzero(during) < JUMP_MIN_DETECTIONS or float(np.median(norms[during])) / median >= JUMP_CALM:
             continue  # the others were off then too, or not seen enough to tell: the pose, not this landmark
