@@ -9,10 +9,14 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
 
     .venv/bin/python benchmarks/handheld_logs.py [--cache DIR] [--seeds 3345 3348] [--no-true]
     .venv/bin/python benchmarks/handheld_logs.py --set round5 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round6 [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
-3-10x above the samples (docs/benchmarks.md, "Logs nobody has run yet, round 5").
+3-10x above the samples (docs/benchmarks.md, "Logs nobody has run yet, round 5"). ``--set round6``: session 34's
+(``ROUND6``): a tag moved, two tags on one id, wild detections, standing still, pure rotation, a fast car, truth far
+away, the twist in the odometry frame, the gyro in deg/s, unset stamps, duplicated and reordered messages, 20 min
+(docs/benchmarks.md, "Logs nobody has run yet, round 6").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -34,7 +38,7 @@ import numpy as np
 from slamobs.pipeline.api import run_log
 from slamobs.pipeline.noise import DEFAULTS
 from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
-from slamobs.pipeline.simulate.scenarios import customize, flight_trajectory, get_scenario, handheld, rot_z
+from slamobs.pipeline.simulate.scenarios import Trajectory, customize, flight_trajectory, get_scenario, handheld, rot_z
 
 SUFFIX = {"mcap": ".mcap", "bag": ".bag", "ros2": ""}
 
@@ -63,6 +67,18 @@ class Case:
     dropouts: tuple[tuple[str, float, float], ...] = ()  # (stream: imu, odom or mag; start s; stop s) silent
     jitter_s: float = 0.0  # odometry and detection stamps moved by uniform +-jitter_s
     cam_yaw_deg: float = 0.0  # the camera turned this much more about the body's z axis
+    # round 6: what a log's maker gets wrong, or what the world does, that the simulator does not draw
+    wild: float = 0.0  # share of the detections moved 1-3 m in a random direction (outliers)
+    moved: tuple[int, float, tuple[float, float, float]] | None = None  # (landmark id, from s, shift m): not static
+    shared_id: tuple[int, int] | None = None  # (a, b): landmark b's detections carry a's id (two tags, one id)
+    stops: tuple[tuple[float, float], ...] = ()  # (start s, length s): the rig stands still
+    scale: float = 1.0  # the scene, path and camera range this many times larger (speeds with it)
+    truth_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)  # truth and its map in a frame this far away (UTM)
+    twist_in_odom: bool = False  # the odometry's linear velocity written in its odom frame, not the body's
+    gyro_deg: bool = False  # the gyro written in deg/s
+    zero_stamps: str = ""  # this stream's header stamps all 0 (imu, odom or detections)
+    duplicate: str = ""  # this stream's messages each written twice (imu or odom)
+    shuffle_s: float = 0.0  # the IMU's and odometry's record times moved by uniform +-shuffle_s (stamps kept)
 
 
 CASES = (
@@ -216,11 +232,80 @@ ROUND5 = (
         3464, "flight", 90, "flight, camera 90 deg, stamps +0.2 s", imu_hz=400, odom_hz=10, cam_yaw_deg=90, offset_s=0.2
     ),
 )
-SETS = {"round4": CASES, "round5": ROUND5}
+#: round 6 (session 34, docs/benchmarks.md "Logs nobody has run yet, round 6"): what the world or a log's maker
+#: does that the simulator does not draw: early detections, a tag moved, two tags on one id, wild detections, a
+#: 20-minute log, standing still, pure rotation, a fast car, truth far away, the twist in the odometry frame, the
+#: gyro in deg/s, unset stamps, duplicated messages, records out of order
+R6 = dict(imu_hz=200, odom_hz=10)
+ROUND6 = (
+    Case(3650, "flight", 90, "flight, detections stamped 0.2 s early", offset_s=-0.2, **R6),
+    Case(3651, "handheld", 90, "tag 10 moved 1 m at 45 s", moved=(10, 45.0, (1.0, 0.0, 0.0)), **R6),
+    Case(3652, "flight", 90, "flight, tag 10 moved 0.5 m at 30 s", "bag", moved=(10, 30.0, (0.0, 0.5, 0.0)), **R6),
+    Case(3653, "handheld", 90, "tags 10 and 22 share id 10", "ros2", shared_id=(10, 22), **R6),
+    Case(3654, "handheld", 90, "5 % wild detections", wild=0.05, **R6),
+    Case(3655, "flight", 90, "flight, 5 % wild detections", "bag", wild=0.05, **R6),
+    Case(3656, "ground", 1200, "ground robot, 20 min", imu_hz=100, odom_hz=10, gyro_x=10, velocity_x=5),
+    Case(3657, "handheld", 120, "30 s stationary start", stops=((0.0, 30.0),), **R6),
+    Case(3658, "handheld", 150, "stands 20 s twice", "ros2", stops=((40.0, 20.0), (95.0, 20.0)), **R6),
+    Case(3659, "spin", 90, "pure rotation in place", **R6),
+    Case(3660, "ground", 120, "car x20: 4-12 m/s, 240 m", scale=20.0, law=(0.05, 0.01), **R6),
+    Case(3661, "handheld", 90, "truth 4,000 km away", truth_offset=(5.0e5, 4.0e6, 120.0), **R6),
+    Case(3662, "ground", 120, "car x20, truth 4,000 km away", "bag", scale=20.0, truth_offset=(5.0e5, 4.0e6, 0), **R6),
+    Case(3663, "handheld", 90, "twist in the odom frame", twist_in_odom=True, **R6),
+    Case(3664, "ground", 180, "ground robot, twist in the odom frame", "bag", twist_in_odom=True, **R6),
+    Case(3665, "handheld", 90, "gyro in deg/s", gyro_deg=True, **R6),
+    Case(3666, "handheld", 90, "odometry header stamps 0", zero_stamps="odom", **R6),
+    Case(3667, "handheld", 90, "detection header stamps 0", "ros2", zero_stamps="detections", **R6),
+    Case(3668, "handheld", 90, "odometry messages twice", "bag", duplicate="odom", **R6),
+    Case(3669, "handheld", 90, "records out of order +-30 ms", shuffle_s=0.03, **R6),
+    Case(3670, "loop", 180, "loop, 30 s still, 3 % wild", stops=((0.0, 30.0),), wild=0.03, **R6),
+)
+SETS = {"round4": CASES, "round5": ROUND5, "round6": ROUND6}
+
+
+def spin_trajectory(t):
+    """Pure rotation in place: the hand-held rig 1.5 m up in the middle of figure8-wide's room, turning about the
+    vertical at 0.1-0.7 rad/s, its roll and pitch still."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    psi, psid = 0.4 * t - 1.5 * np.cos(0.2 * t), 0.4 + 0.3 * np.sin(0.2 * t)
+    zero, n = np.zeros_like(t), len(t)
+    P = np.tile([0.0, 0.0, 1.5], (n, 1))
+    return Trajectory(t, rot_z(psi), P, np.stack([zero, zero, psid], -1), np.zeros((n, 3)), np.zeros((n, 3)))
+
+
+def with_stops(base, stops: tuple[tuple[float, float], ...]):
+    """``base`` with the rig standing still for each (start s, length s) of ``stops`` (log time): the path
+    resumes where it stopped."""
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        s, still = t.copy(), np.zeros(len(t), bool)
+        for lo, length in stops:
+            s -= np.clip(t - lo, 0.0, length)
+            still |= (t >= lo) & (t < lo + length)
+        tr = base(s)
+        z = lambda a: np.where(still[:, None], 0.0, a)  # noqa: E731
+        return replace(tr, t=t, omega=z(tr.omega), v=z(tr.v), accel=z(tr.accel))
+
+    return trajectory
+
+
+def scaled(sc, k: float):
+    """``sc`` k times larger in space (path, speeds, landmarks, camera offset and range), its time unchanged."""
+    base = sc.trajectory
+
+    def trajectory(t):
+        tr = base(t)
+        return replace(tr, P=k * tr.P, v=k * tr.v, accel=k * tr.accel)
+
+    cam = replace(sc.camera, t_bc=k * sc.camera.t_bc, max_range=sc.camera.max_range and k * sc.camera.max_range)
+    return replace(sc, trajectory=trajectory, landmarks=k * sc.landmarks, camera=cam)
 
 
 def scenario(case: Case):
-    if case.scenario == "flight":
+    if case.scenario == "spin":
+        sc = replace(handheld(), name="spin", trajectory=spin_trajectory)
+    elif case.scenario == "flight":
         sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory())
     elif case.scenario != "handheld":
         sc = get_scenario(case.scenario)
@@ -229,7 +314,65 @@ def scenario(case: Case):
     if case.cam_yaw_deg:
         turn = rot_z(np.array([np.deg2rad(case.cam_yaw_deg)]))[0]
         sc = replace(sc, camera=replace(sc.camera, R_bc=turn @ sc.camera.R_bc))
+    if case.scale != 1.0:
+        sc = scaled(sc, case.scale)
+    if case.stops:
+        sc = replace(sc, trajectory=with_stops(sc.trajectory, case.stops))
     return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None)
+
+
+def _rows(d, keep):
+    """The stream ``d`` (a dataclass of per-message arrays) at rows ``keep`` (indices or a mask)."""
+    return replace(d, **{f: getattr(d, f)[keep] for f in d.__dataclass_fields__})
+
+
+def misdrawn(sim, case: Case, sc):
+    """Round 6's changes to the drawn log: a landmark moved, two tags on one id, wild detections, the twist in
+    the odometry frame, the gyro in deg/s, unset stamps, duplicated messages, records out of order, the truth far
+    away (from a generator of their own)."""
+    rng = np.random.default_rng(case.seed + 11)
+    det, imu, odom = sim.detections, sim.imu, sim.odom
+    frame = np.repeat(np.arange(len(det.t_ns)), np.diff(det.offsets))
+    xyz, ids = det.xyz.copy(), det.ids.copy()
+    if case.moved:
+        lid, t0, shift = case.moved
+        t = (det.t_ns[frame] - sim.start_ns) * 1e-9 - case.offset_s
+        sel = (ids == lid) & (t >= t0)
+        r_wc = sc.sample(t[sel]).R @ sc.camera.R_bc
+        xyz[sel] += np.einsum("nji,j->ni", r_wc, np.asarray(shift, float))
+    if case.shared_id:
+        ids[ids == case.shared_id[1]] = case.shared_id[0]
+    if case.wild:
+        sel = rng.random(len(ids)) < case.wild
+        u = rng.standard_normal((sel.sum(), 3))
+        xyz[sel] += u / np.linalg.norm(u, axis=1)[:, None] * rng.uniform(1.0, 3.0, (sel.sum(), 1))
+    det = replace(det, xyz=xyz, ids=ids)
+    if case.twist_in_odom:
+        t = (odom.t_ns - sim.start_ns) * 1e-9
+        r0 = sc.sample(np.zeros(1)).R[0]
+        odom = replace(odom, linear=np.einsum("ji,njk,nk->ni", r0, sc.sample(t).R, odom.linear))
+    if case.gyro_deg:
+        imu = replace(imu, gyro=np.rad2deg(imu.gyro))
+    streams = {"imu": imu, "odom": odom, "detections": det}
+    if case.duplicate:
+        d = streams[case.duplicate]
+        streams[case.duplicate] = _rows(d, np.repeat(np.arange(len(d.t_ns)), 2))
+    if case.shuffle_s:
+        for name in ("imu", "odom"):
+            d = streams[name]
+            move = np.round(rng.uniform(-case.shuffle_s, case.shuffle_s, len(d.rec_ns)) * 1e9).astype(np.int64)
+            streams[name] = replace(d, rec_ns=d.rec_ns + move)
+    if case.zero_stamps:
+        d = streams[case.zero_stamps]
+        streams[case.zero_stamps] = replace(d, t_ns=np.zeros_like(d.t_ns))
+    sim = replace(sim, **streams)
+    if any(case.truth_offset):
+        off = np.asarray(case.truth_offset, float)
+        truth = json.loads(json.dumps(sim.truth))
+        truth["landmarks"] = {k: list(np.asarray(p) + off) for k, p in truth["landmarks"].items()}
+        truth["odom_origin"]["translation"] = list(np.asarray(truth["odom_origin"]["translation"]) + off)
+        sim = replace(sim, truth=truth, mocap=replace(sim.mocap, position=sim.mocap.position + off))
+    return sim
 
 
 def perturb(sim, case: Case):
@@ -246,7 +389,7 @@ def perturb(sim, case: Case):
         d = streams[name]
         t = (d.t_ns - sim.start_ns) * 1e-9
         keep = (t < lo) | (t >= hi)
-        streams[name] = replace(d, **{f: getattr(d, f)[keep] for f in d.__dataclass_fields__})
+        streams[name] = _rows(d, keep)
     det = sim.detections
     if case.jitter_s:
         j = lambda n: np.round(rng.uniform(-case.jitter_s, case.jitter_s, n) * 1e9).astype(np.int64)  # noqa: E731
@@ -270,8 +413,9 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
         detection_per_m=case.law[1],
     )
     kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
-    sim = simulate(scenario(case), noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, **kw)
-    sim = perturb(sim, case)
+    sc = scenario(case)
+    sim = simulate(sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, **kw)
+    sim = misdrawn(perturb(sim, case), case, sc)
     stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
     if case.truncate:
@@ -289,7 +433,12 @@ def run(log: Path, estimator: str, out: Path, noise: dict | None) -> dict:
         run_log(log, out, observer=estimator, config=cfg, force=True)
     except Exception as exc:  # an error is a result of the sweep
         return {"error": str(exc)[:120]}
-    meta, report = json.loads((out / "run.json").read_text()), json.loads((out / "report.json").read_text())
+    meta = json.loads((out / "run.json").read_text())
+    if not (out / "report.json").is_file():  # the run stands, its error report does not (the note says why)
+        why = next((n for n in meta.get("notes") or [] if n.startswith("no error report")), "no error report")
+        shutil.rmtree(out, ignore_errors=True)
+        return {"error": why[:120], "notes": meta.get("notes") or []}
+    report = json.loads((out / "report.json").read_text())
     shutil.rmtree(out, ignore_errors=True)
     conv, nees = report.get("convergence") or {}, (report.get("uncertainty") or {}).get("position") or {}
     verdict = "lost" if conv.get("lost") else "coarse" if conv.get("coarse") else "no" if conv.get("growing") else None

@@ -419,7 +419,8 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    notes += [
+    gyro_said = gyro_degrees_note(aligned, law, g, v)  # the gyro's misread, not the detections', scatters them
+    notes += [w + stream_topics(topics, "gyro") for w in gyro_said] or [
         w + stream_topics(topics, "detections", "camera")
         for w in scattered_note(law) or degrees_note(aligned, law, g, v)
     ]
@@ -441,6 +442,25 @@ def scattered_note(law: DetectionLaw | None) -> list[str]:
         f"({share:.2f} of it) within 1 s: their directions look random, not noisy (a bearing in degrees read as "
         "radians? a frame that turns with the detections?): check the detections' unit and frame; estimates from "
         "them cannot be trusted"
+    ]
+
+
+def gyro_degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float) -> list[str]:
+    """A warning when the detections scatter (``SCATTERED_SHARE``) as the gyro reads and ``DEGREES_RATIO`` times
+    less with its angular velocity divided by 57.3: a gyro in deg/s turns the dead reckoning between a triplet's
+    detections 57.3x too far, and :func:`scattered_note` would blame the detections (a generated hand-held rig
+    with its gyro in deg/s: 0.60 of the range as read; docs/benchmarks.md, "Logs nobody has run yet, round 6").
+    Fitted again only where the detections scatter."""
+    if law is None or (share := _scatter_share(law)[0]) <= SCATTERED_SHARE:
+        return []
+    t, omega, *rest = _stream_arrays(aligned)
+    law_rad = detection_law(log_triplets(t, np.radians(omega), *rest, float(np.radians(gyro)), velocity))
+    if law_rad is None or (rad := _scatter_share(law_rad)[0]) * DEGREES_RATIO > share:
+        return []
+    return [
+        f"warning: noise: the detections scatter {share / rad:.3g}x less within 1 s with the gyro's angular "
+        f"velocity divided by 57.3 ({rad:.2g} of their range against {share:.2g} as read): a gyro in deg/s read as "
+        "rad/s? check the gyro's unit; estimates from it cannot be trusted"
     ]
 
 
