@@ -161,8 +161,9 @@ class NoiseSettings:
     #: (``observers.riekf.unresolved_gyro``), batch and the floor's evidence read ``gyro``, the white level
     gyro_unresolved: np.ndarray | None = None
     #: key (gyro, velocity) -> the samples' white-noise estimate, where the level is a message's stated covariance
-    #: more than ``1 / STATED_LOW`` times above it (:func:`stated_above`): riekf runs its first stretch at both and
-    #: keeps the one its innovations explain better (``observers.riekf``, "Stated levels above the samples")
+    #: above it on some axis: where one is more than ``1 / STATED_LOW`` times above (:func:`stated_above`), riekf
+    #: runs its first stretch at both and keeps the one its innovations explain better (``observers.riekf``,
+    #: "Stated levels above the samples")
     above_samples: dict[str, np.ndarray] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
@@ -580,7 +581,7 @@ def resolve_noise(
             sources[key] = f"{covariance.topic} covariance ({median_rate(covariance.period_s)})"
             if key in found:
                 methods[key] = stated_judgement(key, covariance.density, found[key].value)
-                if stated_above(covariance.density, found[key].value) is not None:
+                if np.any(np.asarray(covariance.density) > np.asarray(found[key].value)):
                     above[key] = _vec(found[key].value)
         elif key in absent:
             values[key], sources[key] = 0.0, "estimated"
