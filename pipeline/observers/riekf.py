@@ -120,16 +120,17 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
 * Stated levels above the samples: a message's covariance more than ``1 / noise.STATED_LOW`` times above the
   samples' white-noise estimate is believed (a coloured noise, a VIO's, is louder than its samples show), yet where
   the sensor is white riekf weighs that stream too loosely (1.2-1.9x its APE with the true levels on session 33's
-  flights and hand-held rigs). Where ``noise.above_samples`` names such keys (gyro, velocity), the first stretch is
-  run at the stated levels, then at the samples' on every such key, then (two keys) on each alone
-  (:func:`level_candidates`, :meth:`RiEKF._level_restart`), and the pass whose innovation deviance per tested
-  detection (:func:`innovation_likelihood`) is lowest is kept; the stated stays unless another's deviance over the
-  stated pass's tested detections is lower by more than the χ² quantile ``LEVEL_CHOICE_P`` for the keys it changes
-  (:func:`chosen_level`). Each candidate's evidence is that of its last pass, after the walk's and the bias priors'
-  restarts below have run at its levels (a pass that lost the track says nothing of the levels: TagSLAM test_22's
-  first, 48 detections in a row gated at either velocity level); the chosen one's are run again. run.json
-  ``observer.filter.stated_levels`` and a note say which level was used and why (docs/benchmarks.md, "riekf between
-  a stated level above the samples' and theirs, session 34"). Nowhere else does anything change.
+  flights and hand-held rigs). Where a key of ``noise.above_samples`` (gyro, velocity: stated above the samples) is
+  that far above, the first stretch is run at the stated levels, then at the samples' on every stated key above
+  them, then (two keys) on each alone (:func:`level_candidates`, :meth:`RiEKF._level_restart`), and the pass whose
+  innovation deviance per tested detection (:func:`innovation_likelihood`) is lowest is kept; the stated stays
+  unless another's deviance over the stated pass's tested detections is lower by more than the χ² quantile
+  ``LEVEL_CHOICE_P`` for the keys it changes (:func:`chosen_level`). Each candidate's evidence is that of its last
+  pass, after the walk's and the bias priors' restarts below have run at its levels (a pass that lost the track says
+  nothing of the levels: TagSLAM test_22's first, 48 detections in a row gated at either velocity level); the chosen
+  one's are run again. run.json ``observer.filter.stated_levels`` and a note say which level was used and why
+  (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). Nowhere else does
+  anything change.
 * Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
   by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
