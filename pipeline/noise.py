@@ -160,6 +160,11 @@ class NoiseSettings:
     #: None when the gyro's level is configured or the log cannot tell); riekf's gyro level takes it
     #: (``observers.riekf.unresolved_gyro``), batch and the floor's evidence read ``gyro``, the white level
     gyro_unresolved: np.ndarray | None = None
+    #: key (gyro, velocity) -> the samples' white-noise estimate, where the level is a message's stated covariance
+    #: above it on some axis: where one is more than ``1 / STATED_LOW`` times above (:func:`stated_above`), riekf
+    #: runs its first stretch at both and keeps the one its innovations explain better (``observers.riekf``,
+    #: "Stated levels above the samples")
+    above_samples: dict[str, np.ndarray] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -582,6 +587,7 @@ def resolve_noise(
     methods: dict[str, str] = {}
     uncertainty: dict[str, object] = {}
     unresolved = None  # a configured gyro level is the user's: nothing added to it
+    above: dict[str, np.ndarray] = {}
     if estimated is not None and cfg.auto and estimated.gyro_unresolved is not None and "gyro" not in section:
         found_u = estimated.gyro_unresolved
         unresolved = _vec(found_u.value)
@@ -595,6 +601,8 @@ def resolve_noise(
             sources[key] = f"{covariance.topic} covariance ({median_rate(covariance.period_s)})"
             if key in found:
                 methods[key] = stated_judgement(key, covariance.density, found[key].value)
+                if np.any(np.asarray(covariance.density) > np.asarray(found[key].value)):
+                    above[key] = _vec(found[key].value)
         elif key in absent:
             values[key], sources[key] = 0.0, "estimated"
             methods[key] = f"not a term of the law chosen, {estimated.detection.law}"
@@ -617,6 +625,7 @@ def resolve_noise(
         absent=tuple(k for k in absent if k not in section),
         floor=cfg.floor,
         gyro_unresolved=unresolved,
+        above_samples=above,
         detection_held_scale=(
             estimated.detection.held_scale
             if estimated is not None
@@ -655,8 +664,9 @@ def stated_judgement(key: str, density, estimate) -> str:
         return (
             f"{above:.3g}x above the samples' white-noise estimate {level}, used as stated (a coloured noise, a "
             f"VIO's or a filtered odometry's, is louder than its samples show): riekf and batch take a stated level "
-            f"up to {STATED_ABOVE:g}x the estimate; if the sensor is white, noise.{key} in run.yaml at the estimate "
-            "weighs it as it is"
+            f"up to {STATED_ABOVE:g}x the estimate (riekf keeps the stated or the estimate, whichever its "
+            f"innovations explain better: its note says which); if the sensor is white, noise.{key} in run.yaml at "
+            "the estimate weighs it as it is"
         )
     return f"plausible; the samples' white-noise estimate is {level}"
 

@@ -44,8 +44,10 @@ def _filter(log, out, noise: dict | None) -> dict:
 
 
 def test_the_deviance_is_lowest_at_the_levels_the_log_was_drawn_with(tenfold, tmp_path):
-    stated = _filter(tenfold, tmp_path / "stated", None)
-    assert stated["noise"]["sources"]["velocity"].startswith("/odom covariance"), stated["noise"]["sources"]
+    auto = _filter(tenfold, tmp_path / "auto", None)  # riekf weighs the stated levels against the samples'
+    assert auto["stated_levels"]["tried"][0]["levels"] == {"gyro": "stated", "velocity": "stated"}, auto
+    assert auto["stated_levels"]["used"] == {"gyro": "samples", "velocity": "samples"}, auto["stated_levels"]
+    stated = _filter(tenfold, tmp_path / "stated", {"gyro": 10 * GYRO, "velocity": 10 * VELOCITY, **LAW})
     true = _filter(tenfold, tmp_path / "true", {"gyro": GYRO, "velocity": VELOCITY, **LAW})
     tight = _filter(tenfold, tmp_path / "tight", {"gyro": GYRO / 10, "velocity": VELOCITY / 10, **LAW})
     lik = {k: r["likelihood"] for k, r in (("stated", stated), ("true", true), ("tight", tight))}

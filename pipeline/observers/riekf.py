@@ -117,6 +117,20 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
   half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
   real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
+* Stated levels above the samples: a message's covariance more than ``1 / noise.STATED_LOW`` times above the
+  samples' white-noise estimate is believed (a coloured noise, a VIO's, is louder than its samples show), yet where
+  the sensor is white riekf weighs that stream too loosely (1.2-1.9x its APE with the true levels on session 33's
+  flights and hand-held rigs). Where a key of ``noise.above_samples`` (gyro, velocity: stated above the samples) is
+  that far above, the first stretch is run at the stated levels, then at the samples' on every stated key above
+  them, then (two keys) on each alone (:func:`level_candidates`, :meth:`RiEKF._level_restart`), and the pass whose
+  innovation deviance per tested detection (:func:`innovation_likelihood`) is lowest is kept; the stated stays
+  unless another's deviance over the stated pass's tested detections is lower by more than the χ² quantile
+  ``LEVEL_CHOICE_P`` for the keys it changes (:func:`chosen_level`). Each candidate's evidence is that of its last
+  pass, after the walk's and the bias priors' restarts below have run at its levels (a pass that lost the track says
+  nothing of the levels: TagSLAM test_22's first, 48 detections in a row gated at either velocity level); the chosen
+  one's are run again. run.json ``observer.filter.stated_levels`` and a note say which level was used and why
+  (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). Nowhere else does
+  anything change.
 * Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
   by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
@@ -193,7 +207,7 @@ from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import floor_tilt_row, project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.noise import format_level, nees_bounds
+from slamobs.pipeline.noise import chi2_quantile, format_level, nees_bounds, stated_above
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -1857,6 +1871,10 @@ class RiEKF(Stepper):
         # each narrowed pass that kept the track (its evidence), and whether the best of them was chosen
         self._tried: list[dict] = []
         self._prior_chosen = False
+        # stated levels above the samples': the candidate levels, each one's first-stretch evidence, and the choice
+        self._white0, self._levels = white, level_candidates(white)
+        self._levels_tried: list[dict] = []
+        self._levels_chosen: int | None = None if len(self._levels) > 1 else 0
         if self._offset.done():  # one core: estimated already, nothing to overlap
             self._time_offset, self._offset = self._offset.result(), None
             stream = time_offset.shifted(stream, self._time_offset)
@@ -1925,14 +1943,66 @@ class RiEKF(Stepper):
     def advance(self, iv_stop: int):
         """:meth:`Stepper.advance` (:meth:`_advance_stretch`); the first stretch is run again from the start with the
         walk it learned as long as its velocity-bias corrections say the walk is too small (:meth:`_walk_restart`)."""
-        res = self._advance_stretch(iv_stop)
-        while not self._returned and (self._walk_restart() or self._prior_restart()):
-            res = self._advance_stretch(iv_stop)
-        if not self._returned and self._tried:  # the kept pass's own evidence came after its statistics
+        res = self._settled(iv_stop, self._advance_stretch(iv_stop))
+        while not self._returned and self._levels_chosen is None:
+            again = self._level_restart(diverged=False)
+            while again:
+                try:
+                    res = self._settled(iv_stop, self._advance_stretch(iv_stop))
+                    break
+                except ObserverDiverged:  # a candidate level the filter cannot run on: the worst of them
+                    again = self._level_restart(diverged=True)
+        if not self._returned and (
+            self._tried or self._levels_tried
+        ):  # the kept pass's own evidence came after its statistics
             self._describe()
             res = replace(res, stats=dict(self.stats))
         self._returned = True
         return self._widened(res)
+
+    def _settled(self, iv_stop: int, res):
+        """``res``, the first stretch run again while the walk's or the bias priors' restarts ask for it."""
+        while not self._returned and (self._walk_restart() or self._prior_restart()):
+            res = self._advance_stretch(iv_stop)
+        return res
+
+    def _level_restart(self, diverged: bool) -> bool:
+        """Whether the first stretch is run again at another candidate level (module docstring, "Stated levels above
+        the samples"): the pass just run (the last of its level's walk and bias-prior restarts) is recorded
+        (``diverged``: it raised, its deviance infinite); the next candidate is run while any is left; then the
+        lowest deviance per tested detection is chosen, the stated levels kept unless another's deviance over the
+        stated pass's tested detections is lower by more than the χ² quantile ``LEVEL_CHOICE_P`` for the keys it
+        changes (:func:`chosen_level`), and run again when it was not the last pass."""
+        i = len(self._levels_tried)
+        lik = innovation_likelihood(self.state.win_sum[8])
+        self._levels_tried.append(
+            {
+                "levels": self._levels[i]["which"],
+                "deviance_mean": None if diverged else lik["mean"],
+                "tested": 0 if diverged else lik["tested"],
+                "gated": None if diverged else int(self.state.ns[_GATED]),
+                **({"diverged": True} if diverged else {}),
+            }
+        )
+        if i + 1 < len(self._levels):
+            self._use_levels(i + 1)
+            return True
+        self._levels_chosen = chosen_level(self._levels_tried)
+        if self._levels_chosen == i and not diverged:
+            return False
+        self._use_levels(self._levels_chosen)
+        return True
+
+    def _use_levels(self, i: int) -> None:
+        """The filter started again at candidate level ``i`` (:func:`level_candidates`): its white levels, riekf's
+        gyro from them, the detection pairs' prior on them."""
+        self._white = self._levels[i]["noise"]
+        self.noise = self._noise0 = unresolved_gyro(self._white)
+        self.pair_prior = pair_bias_prior(self._recorded, self.noise)
+        # the walk's and the bias priors' restarts start over at these levels (:meth:`_settled`)
+        self._walk0, self._passes, self._prior_passes, self._lost_runs = 1.0, 1, 0, []
+        self._prior_kept, self._tried, self._prior_chosen = True, [], False
+        self._setup(self.stream)
 
     def _walk_restart(self) -> bool:
         """Whether the first stretch is run again (module docstring, "Velocity-bias walk"): when the largest ratio of
@@ -2136,6 +2206,7 @@ class RiEKF(Stepper):
                 "innovation_consistency": innovation_consistency(self.state.win_sum[8]),
                 "likelihood": innovation_likelihood(self.state.win_sum[8]),
                 "correlation": self._correlation(),
+                **({"stated_levels": self._stated_levels()} if self._levels_tried else {}),
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -2150,6 +2221,22 @@ class RiEKF(Stepper):
         self.stats["notes"] += innovation_note(self.stats["metadata"]["filter"]["innovation_consistency"])
         self.stats["notes"] += correlation_note(self.stats["metadata"]["filter"]["correlation"])
         self.stats["notes"] += unresolved_note(self._white, self.noise)
+        if self._levels_chosen is not None and self._levels_tried:  # said once chosen
+            self.stats["notes"] += stated_levels_note(self.stats["metadata"]["filter"]["stated_levels"])
+
+    def _stated_levels(self) -> dict:
+        """run.json ``observer.filter.stated_levels``: each candidate tried over the first stretch (which keys at the
+        samples' level, its deviance per tested detection, tested and gated), the one used, the stated and the
+        samples' levels."""
+        used = self._levels_chosen if self._levels_chosen is not None else len(self._levels_tried) - 1
+        keys = list(self._white0.above_samples)
+        return {
+            "tried": self._levels_tried,
+            "used": self._levels_tried[used]["levels"],
+            "stated": {k: _plain_list(getattr(self._white0, k)) for k in keys},
+            "samples": {k: _plain_list(self._white0.above_samples[k]) for k in keys},
+            "chi2_threshold": {str(n): round(chi2_quantile(LEVEL_CHOICE_P, n), 3) for n in range(1, len(keys) + 1)},
+        }
 
     def _correlation(self) -> dict:
         """:func:`correlation_factor` of the pass so far, with the factor each written stretch got and this one's
@@ -2392,6 +2479,110 @@ def innovation_note(rec: dict) -> list[str]:
         f"{rec['bound']:.3g} of 3 DoF): the written landmark covariance is the filter's times "
         f"{rec['landmark_covariance_factor']:.3g} (observer.filter.innovation_consistency); the poses' is not scaled"
     ]
+
+
+#: The χ² probability of the likelihood-ratio test a samples' level must pass to replace a stated one (module
+#: docstring, "Stated levels above the samples"; :func:`chosen_level`): the deviance over the stated pass's tested
+#: detections lower by more than its quantile with one degree of freedom per key changed.
+LEVEL_CHOICE_P = 0.99
+
+
+def level_candidates(white) -> list[dict]:
+    """The levels riekf tries where a stated covariance is more than ``1 / noise.STATED_LOW`` times above the
+    samples' white-noise estimate (``white.above_samples``): the stated (as resolved) first, then every stated key
+    above its samples' level (the other key too when it is above by less: with one key tight and the other loose
+    riekf did worse than with both as stated, seed=3458 and seed=3626) at the samples' level, then (two keys) each
+    alone; one candidate (the levels as resolved) elsewhere. Each:
+    ``which`` (key -> "stated" or "samples") and ``noise`` (the white levels, the swapped keys' source saying so)."""
+    keys = list(white.above_samples)
+    if not any(stated_above(getattr(white, k), white.above_samples[k]) is not None for k in keys):
+        return [{"which": {}, "noise": white}]
+    subsets = [(), tuple(keys)] + ([(k,) for k in keys] if len(keys) > 1 else [])
+    out = []
+    for swap in subsets:
+        noise = white
+        if swap:
+            sources, methods = dict(white.sources), dict(white.methods)
+            for k in swap:
+                sources[k] = "the samples' white-noise estimate (riekf, over the stated covariance)"
+                methods[k] = f"{white.sources.get(k)}, {white.methods.get(k)}; riekf tried the samples' level"
+            noise = replace(
+                white,
+                **{k: np.asarray(white.above_samples[k], dtype=float) for k in swap},
+                sources=sources,
+                methods=methods,
+            )
+        out.append({"which": {k: "samples" if k in swap else "stated" for k in keys}, "noise": noise})
+    return out
+
+
+def chosen_level(tried: list[dict]) -> int:
+    """Which of the candidate levels' passes (:func:`level_candidates`' order, the stated first) riekf keeps: the
+    lowest innovation deviance per tested detection, unless the stated's is within the χ² quantile
+    ``LEVEL_CHOICE_P`` (one degree of freedom per key changed) of it over the stated pass's tested detections (a
+    tie keeps the stated: the message's word stands unless the detections say otherwise)."""
+    best = min(range(len(tried)), key=lambda i: _deviance(tried[i]))
+    stated = tried[0]
+    if best == 0 or stated["deviance_mean"] is None:
+        return best
+    changed = sum(v == "samples" for v in tried[best]["levels"].values())
+    gain = (stated["deviance_mean"] - tried[best]["deviance_mean"]) * stated["tested"]
+    return best if gain > chi2_quantile(LEVEL_CHOICE_P, changed) else 0
+
+
+def stated_levels_note(rec: dict) -> list[str]:
+    """The note of riekf's choice between stated levels above the samples' and the samples' (run.json
+    ``observer.filter.stated_levels``)."""
+    tried = rec["tried"]
+    used = next(t for t in tried if t["levels"] == rec["used"])
+    stated = tried[0]
+
+    def dev(t: dict) -> str:
+        return "diverged" if t["deviance_mean"] is None else f"{t['deviance_mean']:.3g}"
+
+    each = "; ".join(f"{', '.join(f'{k} {v}' for k, v in t['levels'].items())}: {dev(t)}" for t in tried)
+    samples = [k for k, v in rec["used"].items() if v == "samples"]
+    kept = [k for k, v in rec["used"].items() if v == "stated"]
+    said = []
+    if samples:
+        said.append(
+            " and ".join(f"{k} at the samples' white-noise estimate {format_level(rec['samples'][k])}" for k in samples)
+            + ", not the stated "
+            + " and ".join(format_level(rec["stated"][k]) for k in samples)
+        )
+    if kept:
+        said.append(
+            " and ".join(f"{k} at the stated {format_level(rec['stated'][k])}" for k in kept)
+            + " (above the samples' "
+            + " and ".join(format_level(rec["samples"][k]) for k in kept)
+            + ")"
+        )
+    best = min(tried[1:], key=_deviance)
+    if samples:
+        why = f"its innovations' deviance per tested detection {dev(used)} against {dev(stated)} as stated"
+    elif best["deviance_mean"] is None or stated["deviance_mean"] is None:
+        why = "the samples' level diverged"
+    else:
+        gain = (stated["deviance_mean"] - best["deviance_mean"]) * stated["tested"]
+        changed = sum(v == "samples" for v in best["levels"].values())
+        by = (
+            f"{-gain:.3g} higher"
+            if gain <= 0
+            else f"{gain:.3g} lower, not more than {rec['chi2_threshold'][str(changed)]:.3g}, the χ² quantile at "
+            f"{LEVEL_CHOICE_P:.0%}"
+        )
+        why = (
+            f"the samples' level{'s explain' if changed > 1 else ' explains'} the detections no better by a "
+            f"likelihood-ratio test (its deviance over the {stated['tested']} tested detections {by})"
+        )
+    return [
+        f"riekf: {'; '.join(said)}: {why} (tried over the first stretch: {each}; lower explains the detections "
+        "better; run.json observer.filter.stated_levels; noise.gyro / noise.velocity in run.yaml set a level)"
+    ]
+
+
+def _plain_list(value) -> list[float]:
+    return [float(x) for x in np.broadcast_to(np.asarray(value, dtype=float), (3,))]
 
 
 def unresolved_gyro(noise):
