@@ -224,7 +224,7 @@ def _summarised(
         with Progress(quiet) as progress, dataset_report(run_dir):
             what = "drawing the run's figures" if report_plots(meta, plots) else "summarising the run"
             progress(f"report: {what} (no truth: no error report)")
-            info, written = summarise_run(run_dir, plots)
+            info, written = summarise_run(run_dir, plots, set_aside=told and has_truth(meta))
     except InputError as err:
         exit_input_error(str(err))
     if as_json:
