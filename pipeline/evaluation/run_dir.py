@@ -107,7 +107,9 @@ def _checked_run(run_dir: Path) -> tuple[dict[str, Any], dict | None]:
     check_utf8(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
-        raise InputError(run_dir, "not a run directory (no run.json)")
+        from slamobs.pipeline.stored_runs import not_a_run
+
+        raise not_a_run(run_dir)
     meta = read_json(meta_path)
     from slamobs.pipeline.stored_runs import run_tables
 
