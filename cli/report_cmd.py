@@ -313,7 +313,8 @@ def echo_biases_and_convergence(r: dict) -> None:
 
 def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
     src = r.get("truth_source") or {}
-    click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")
+    where = f" of {src['log']}" if src.get("log") else ""  # the log it was read from (LOG:TOPIC: another log)
+    click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')}{where} ({src.get('n_poses', '?')} poses)")
     ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
     kind = r["method"]["alignment"]["type"]
     click.echo(

@@ -104,6 +104,9 @@ def test_report_takes_every_form(logs, run_dirs):
         assert abs(rep["ape"]["translation_m"]["rmse"] - _ape(run_dirs[name])) < 1e-3, name
     src = json.loads(invoke("report", base, "--truth", f"{logs['other']}:{TOPIC}", "--json").stdout)["truth_source"]
     assert src["log"] == str(logs["other"])
+    # the summary named `topic /mocap/pose` alone, as if the run's own log's (round 21)
+    res = invoke("report", base, "--truth", f"{logs['other']}:{TOPIC}", "--no-plots")
+    assert f"truth        topic {TOPIC} of {logs['other']} (" in res.stdout, res.stdout
 
 
 def test_config_topics_truth_takes_every_form(logs, tmp_path):
