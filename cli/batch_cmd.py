@@ -286,7 +286,8 @@ def run(
 
     \b
     Exit codes:
-      0    every log ok or skipped
+      0    every log finished (ok, or off by its estimator's own status:
+           likely_lost, lost, gated_at_end) or skipped
       1    some logs failed (bad log, timeout, a worker died twice on it, a log
            changed while it ran)
       4    none failed, but some runs were kept as they were (not deleted, not

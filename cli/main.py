@@ -287,7 +287,10 @@ def observers() -> None:
         click.echo(f"{spec.name}  (algorithm {spec.algorithm}) {spec.summary}")
         click.echo(f"    paper: {spec.paper}")
         if not spec.gains:
-            click.echo("    no gains (noise levels under `noise:`, the smoother's settings under `batch:` in run.yaml)")
+            click.echo(
+                "    no gains: noise levels learned from each log (`slamobs info --noise LOG` prints them) unless set "
+                "under `noise:` in run.yaml; the smoother's settings under `batch:`"
+            )
         width = max((len(g.name) for g in spec.gains), default=0)
         for g in spec.gains:
             click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")

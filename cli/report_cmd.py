@@ -66,24 +66,24 @@ def _previous_options(run_dir: Path) -> dict:
     help="a topic of the run's log, a TF edge parent->child, a TUM / EuRoC CSV / KITTI (with stamps) file, or "
     "LOG:TOPIC of another log; 'none': the run's figures and summary without its truth [default: the run's truth]",
 )
-@click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
+@click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s]")
 @click.option(
     "--t-offset",
     "--t_offset",
     default=None,
-    help="seconds added to the estimate stamps, or 'auto' to apply the estimated clock offset (0)",
+    help="seconds added to the estimate stamps, or 'auto' to apply the estimated clock offset",
 )
 @click.option(
     "--align",
     type=click.Choice(ALIGNMENTS + ("posyaw",)),
     default=None,
-    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw, rpg's posyaw)",
+    help="alignment of the estimate onto the truth (yaw = 4-DoF translation + yaw, rpg's posyaw)",
 )
-@click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m] (0.1)")
-@click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m] (1)")
+@click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m]")
+@click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m]")
 @click.option("--drift-lengths", default=None, help="KITTI drift segment lengths, comma-separated metres")
 @click.option(
-    "--bias-window", type=Finite(), default=None, help="fraction of the run at its end used for bias stability (0.2)"
+    "--bias-window", type=Finite(), default=None, help="fraction of the run at its end used for bias stability"
 )
 @config_option(
     "run.yaml, read as `slamobs run` reads it: its truth (topics.truth, evaluation.truth_file), evaluation.t_max_diff, "
@@ -114,7 +114,9 @@ def report(
     Without truth (the run had none and no --truth), or when the run's own truth cannot judge it (no poses, too
     short: as ``slamobs run`` reported): the run's figures and a summary in report.md. It draws every figure
     (evaluation.plots: true spares a run its figures' time: docs/outputs.md, which figures), none where the run
-    was made with evaluation.plots: false (or --no-plots); --plots draws them all there too."""
+    was made with evaluation.plots: false (or --no-plots); --plots draws them all there too. The options from
+    --t-max-diff to --bias-window, where not given, keep what the run's report used: its report.json options
+    lists them (a run's first report takes them from its config's evaluation: section, else its defaults)."""
     from slamobs.pipeline.config import NO_TRUTH
     from slamobs.pipeline.errors import TruthUnusable
 
@@ -224,7 +226,7 @@ def _summarised(
         with Progress(quiet) as progress, dataset_report(run_dir):
             what = "drawing the run's figures" if report_plots(meta, plots) else "summarising the run"
             progress(f"report: {what} (no truth: no error report)")
-            info, written = summarise_run(run_dir, plots)
+            info, written = summarise_run(run_dir, plots, set_aside=told and has_truth(meta))
     except InputError as err:
         exit_input_error(str(err))
     if as_json:
@@ -311,7 +313,8 @@ def echo_biases_and_convergence(r: dict) -> None:
 
 def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
     src = r.get("truth_source") or {}
-    click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")
+    where = f" of {src['log']}" if src.get("log") else ""  # the log it was read from (LOG:TOPIC: another log)
+    click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')}{where} ({src.get('n_poses', '?')} poses)")
     ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
     kind = r["method"]["alignment"]["type"]
     click.echo(

@@ -112,7 +112,7 @@ def tune(
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.errors import GainError, InputError
     from slamobs.pipeline.interrupts import take_pending
-    from slamobs.pipeline.tune.results import lost_words
+    from slamobs.pipeline.tune.results import defaults_won, lost_words
     from slamobs.pipeline.tune.study import TuneFailed, TuneOptions, run_tune
 
     handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
@@ -182,8 +182,10 @@ def tune(
     best, default = s["best"], s["defaults"]
     unit = s["objective"]["unit"]
     if best:
+        which = f" ({said})" if (said := defaults_won(s)) else ""
         click.echo(
-            f"best         trial {best['trial']}: median {s['objective']['metric']} {best['objective']:.4g} {unit}"
+            f"best         trial {best['trial']}{which}: median {s['objective']['metric']} "
+            f"{best['objective']:.4g} {unit}"
             + (
                 f" (defaults {default['objective']:.4g} {unit})"
                 if default and default["objective"] is not None and default["objective"] != float("inf")

@@ -10,7 +10,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from slamobs.pipeline.errors import InputError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -74,7 +73,9 @@ def load_run(run_dir: str | Path) -> RunData:
     run_dir = Path(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
-        raise InputError(run_dir, "not a run directory (no run.json)")
+        from slamobs.pipeline.stored_runs import not_a_run
+
+        raise not_a_run(run_dir)
 
     report_path = run_dir / "report.json"
     from slamobs.pipeline.stored_runs import run_tables

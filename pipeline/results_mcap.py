@@ -401,7 +401,9 @@ def write_results_mcap(
     check_utf8(run_dir)
     if meta is None:
         if not (run_dir / "run.json").is_file():
-            raise InputError(run_dir, "not a run directory (no run.json)")
+            from slamobs.pipeline.stored_runs import not_a_run
+
+            raise not_a_run(run_dir)
         meta = read_json(run_dir / "run.json")
     if report is None and (run_dir / "report.json").is_file():
         report = read_json(run_dir / "report.json")

@@ -22,6 +22,24 @@ RUN_META = "batch.json"  # in runs/<id>/: run_id, its tables and row counts, and
 RUN_IDS_KEY = "slamobs.run_ids"  # footer key of a compacted file: the run_ids it holds (JSON list)
 
 
+def not_a_run(path: Path) -> InputError:
+    """The one error of a command given a directory without ``run.json`` (``report``, ``export``, ``view``,
+    ``load_run``); where it holds run directories (a compare output's, a batch dataset's ``runs/<id>``) it names the
+    first of them to give instead."""
+    path = Path(path)
+    found: list[Path] = []
+    for parent in (path, path / RUNS):
+        try:
+            found += sorted(p for p in parent.iterdir() if (p / "run.json").is_file())
+        except OSError:  # not a directory, or unreadable: nothing to name
+            continue
+    words = "not a run directory (no run.json)"
+    if found:
+        shown = ", ".join(map(str, found[:3])) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
+        words += f"; it holds run directories ({shown}): give one of them"
+    return InputError(path, words)
+
+
 def run_dir(out: Path, run_id: str) -> Path:
     return Path(out) / RUNS / run_id
 

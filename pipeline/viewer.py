@@ -122,7 +122,9 @@ def load_view_run(run_dir: Path) -> ViewRun:
 
     run_dir = Path(run_dir)
     if not (run_dir / "run.json").is_file():
-        raise InputError(run_dir, "not a run directory (no run.json)")
+        from slamobs.pipeline.stored_runs import not_a_run
+
+        raise not_a_run(run_dir)
     meta = read_json(run_dir / "run.json")
     poses = read_run_table(run_dir, "poses")
     if poses is None or len(poses) == 0:

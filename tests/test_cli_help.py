@@ -72,3 +72,15 @@ def test_python_dash_m_runs_the_command():
     assert "riekf" in res.stdout and "batch" in res.stdout
     bad = subprocess.run([sys.executable, "-m", "slamobs.cli.main", "no-such-command"], capture_output=True, text=True)
     assert bad.returncode == 2 and "no-such-command" in bad.stderr
+
+
+def test_report_and_batch_help_say_what_their_defaults_and_exit_codes_are():
+    """Round 21 read the help as a stranger: `report --help` gave `association tolerance [s] (0.01)`, `(0.1)`, ...
+    where a re-report keeps the run's report's options (`report --t-max-diff 0.05`, then `report`: 0.05), numbers
+    written a second time beside the report's own defaults; `batch --help` said exit 0 is "every log ok or
+    skipped" where a finished run off by its estimator's own status (likely_lost, ...) exits 0 too."""
+    text = " ".join(invoke("report", "--help").output.split())
+    assert "keep what the run's report used: its report.json options lists them" in text, text
+    assert not [d for d in ("(0.01)", "(0.1)", "(1)", "(0.2)", "(se3;") if d in text], text
+    text = " ".join(invoke("batch", "--help").output.split())
+    assert "0 every log finished (ok, or off by its estimator's own status: likely_lost, lost, gated_at_end)" in text

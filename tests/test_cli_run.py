@@ -262,6 +262,9 @@ def test_observers_command_lists_gains():
     res = invoke("observers")
     assert res.exit_code == 0
     assert "fast-adaptation" in res.output and "k_w" in res.output
+    # riekf and batch learn their noise from each log by default (noise: auto); the list read as if run.yaml's
+    # `noise:` section were where their levels come from (round 21)
+    assert res.output.count("no gains: noise levels learned from each log (`slamobs info --noise LOG`") == 2
 
 
 def test_demo_sample_copy_runs_from_any_directory(tmp_path, monkeypatch):

@@ -166,6 +166,28 @@ def test_report_errors_are_one_line(run_dir, tmp_path):
     assert res.exit_code == 2 and "input log is not there" in res.stderr
 
 
+def test_a_directory_of_runs_given_as_a_run_names_them(finished_run, tmp_path):
+    """Round 21: `slamobs export figure8_cmp -o e.mcap` (a compare output) and `slamobs report dataset` (a batch
+    dataset) said only "not a run directory (no run.json)"; the line now names the run directories they hold."""
+    import slamobs
+    from slamobs.pipeline.errors import InputError
+
+    cmp = tmp_path / "cmp"
+    for name in ("riekf", "batch"):
+        shutil.copytree(finished_run, cmp / name)
+    res = invoke(report, cmp)
+    assert res.exit_code == 2, res.output
+    assert res.stderr.splitlines() == [
+        f"error: {cmp}: not a run directory (no run.json); it holds run directories ({cmp / 'batch'}, "
+        f"{cmp / 'riekf'}): give one of them"
+    ]
+    with pytest.raises(InputError, match=r"runs/one\): give one of them"):
+        shutil.copytree(finished_run, tmp_path / "ds" / "runs" / "one")
+        slamobs.load_run(tmp_path / "ds")
+    res = invoke(report, tmp_path / "nothing")
+    assert res.stderr.splitlines() == [f"error: {tmp_path / 'nothing'}: not a run directory (no run.json)"]
+
+
 def test_failed_report_leaves_the_previous_one(run_dir, monkeypatch):
     import slamobs.pipeline.evaluation.run_dir as rd
 

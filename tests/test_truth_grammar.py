@@ -104,6 +104,9 @@ def test_report_takes_every_form(logs, run_dirs):
         assert abs(rep["ape"]["translation_m"]["rmse"] - _ape(run_dirs[name])) < 1e-3, name
     src = json.loads(invoke("report", base, "--truth", f"{logs['other']}:{TOPIC}", "--json").stdout)["truth_source"]
     assert src["log"] == str(logs["other"])
+    # the summary named `topic /mocap/pose` alone, as if the run's own log's (round 21)
+    res = invoke("report", base, "--truth", f"{logs['other']}:{TOPIC}", "--no-plots")
+    assert f"truth        topic {TOPIC} of {logs['other']} (" in res.stdout, res.stdout
 
 
 def test_config_topics_truth_takes_every_form(logs, tmp_path):
@@ -211,7 +214,10 @@ def test_truth_none_runs_and_reports_without_truth(logs, run_dirs, tmp_path):
     assert not (tmp_path / "cmp" / "fast-adaptation" / "report.json").exists()
     res = invoke("report", run_dirs["topic"], "--truth", "none")  # a run with truth, summarised without it
     assert res.exit_code == 0 and res.output.startswith("truth        none (--truth none)"), res.output
-    assert "# Run summary (no ground truth)" in (run_dirs["topic"] / "report.md").read_text()
+    page = (run_dirs["topic"] / "report.md").read_text()
+    assert "# Run summary (no ground truth)" in page
+    # its summary said "none in the log, or one too short or empty: the notes say which", and no note said
+    assert "- no error report: --truth none set the run's own truth aside" in page, page
 
 
 def test_a_gps_fix_named_as_a_trajectory_says_what_to_convert_it_to(tmp_path):

@@ -587,8 +587,9 @@ def summary_markdown(
     elif map_error is None:
         lines = ["# Run summary (no ground truth)", ""]
         lines.append(
-            "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes "
-            "say which), so there are no error numbers; the figures show the estimate."
+            "The run has no ground truth it can be judged by (none in the log, one too short or empty, or one set "
+            "aside by `--truth none`: the notes say which), so there are no error numbers; the figures show the "
+            "estimate."
         )
     else:
         lines = ["# Run summary (no trajectory truth; map error against the landmark truth)", ""]

@@ -107,7 +107,9 @@ def _checked_run(run_dir: Path) -> tuple[dict[str, Any], dict | None]:
     check_utf8(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
-        raise InputError(run_dir, "not a run directory (no run.json)")
+        from slamobs.pipeline.stored_runs import not_a_run
+
+        raise not_a_run(run_dir)
     meta = read_json(meta_path)
     from slamobs.pipeline.stored_runs import run_tables
 
@@ -397,16 +399,26 @@ def report_run(
     return report, _replace_report_files(run, fill)
 
 
-def summarise_run(run_dir: str | Path, plots: bool | None = None) -> tuple[dict[str, Any], list[Path]]:
+#: report.md's note when ``slamobs report --truth none`` sets a run's truth aside (its summary says the notes tell
+#: why there are no error numbers).
+TRUTH_SET_ASIDE = "no error report: --truth none set the run's own truth aside (`slamobs report RUN` reports on it)"
+
+
+def summarise_run(
+    run_dir: str | Path, plots: bool | None = None, set_aside: bool = False
+) -> tuple[dict[str, Any], list[Path]]:
     """A run without truth: draw its figures (as :func:`report_run`, ``plots``) and write report.md (what the run
     did, the figures) again, replacing the report files atomically as :func:`report_run` does; returns what
     ``report --json`` prints (every number of report.md with its definition: ``figure_jobs.summary_json``) and the
-    paths written."""
+    paths written. ``set_aside``: the run has truth, ``--truth none`` asked for none (:data:`TRUTH_SET_ASIDE`
+    among report.md's notes)."""
     from slamobs.pipeline.evaluation.figure_jobs import summary, summary_json, write_run_figures
 
     run = load_run(run_dir)
     tables = _tables(run)
     notes, map_error = list(run.meta.get("notes") or []), run.meta.get("map_error")
+    if set_aside:
+        notes.insert(0, TRUTH_SET_ASIDE)
     figures: list[str] = []
 
     def fill(staged: Path) -> None:

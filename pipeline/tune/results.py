@@ -311,6 +311,15 @@ def _finite(o):
     return o
 
 
+def defaults_won(s: dict) -> str:
+    """What the best trial is when it is the defaults' trial (no trial scored lower, so gains.yaml holds the
+    defaults), said after its number by the command and tune.md; "" otherwise."""
+    best, default = s.get("best"), s.get("defaults")
+    if not best or not default or best["trial"] != default["trial"]:
+        return ""
+    return "the defaults: no other trial scored lower; gains.yaml holds them"
+
+
 def lost_words(s: dict) -> str | None:
     """The best trial's logs on which its run's own check says the estimate is likely lost (the run's warning with
     these gains), and the defaults' count: tune.json's ``best.likely_lost``; None when there is none."""
@@ -354,8 +363,12 @@ def render_markdown(s: dict) -> str:
         lines.append(f"| **median** | {_fmt(s['defaults']['objective'])} | {_fmt(s['best']['objective'])} |")
         lines += [
             "",
-            "Best gains (trial %d): %s"
-            % (s["best"]["trial"], ", ".join(f"{k} {v:.4g}" for k, v in s["best"]["gains"].items())),
+            "Best gains (trial %d%s): %s"
+            % (
+                s["best"]["trial"],
+                f", {defaults_won(s)}" if defaults_won(s) else "",
+                ", ".join(f"{k} {v:.4g}" for k, v in s["best"]["gains"].items()),
+            ),
             "",
         ]
         if said := lost_words(s):

@@ -61,8 +61,9 @@ def prepared_log(log: str, config, directions: bool, need_truth: bool = True):
 
         raise InputError(
             log,
-            "no ground truth (a truth topic, evaluation.truth_file or a TF edge in topics.truth): "
-            "tuning needs logs with truth",
+            "no ground truth (a truth topic, evaluation.truth_file or a TF edge in topics.truth): a tuning log "
+            "needs it unless the tune is --target batch (scored against the batch smoother's solution); "
+            "a --holdout log always does",
         )
     PREPARED[key] = prepared
     while len(PREPARED) > CACHE_LOGS:
