@@ -1363,10 +1363,11 @@ def _world_twist_sentence(offset: dict, gain: float) -> str:
 def note(name: str | None, offset: dict) -> list[str]:
     """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), its
     warning when only the log's halves held it back (:func:`unapplied_note`: every estimator decides by the one rule,
-    so every one says it), and :func:`misread_warnings`; ``name`` None: the misread warnings alone, as ``slamobs info
-    --noise`` says them before any estimator runs (the same sentences, without an estimator's name and what it used)."""
+    so every one says it), and :func:`misread_warnings`; ``name`` None: the held-back offset's warning and the
+    misread warnings, as ``slamobs info --noise`` says them before any estimator runs (the same sentences, without an
+    estimator's name and what it used)."""
     if name is None:
-        return [f"warning: {sentence}" for sentence, _ in _misreads(offset)]
+        return unapplied_note(None, offset) + [f"warning: {sentence}" for sentence, _ in _misreads(offset)]
     said = misread_warnings(name, offset)
     if not offset["applied"]:
         return unapplied_note(name, offset) + said
@@ -1387,20 +1388,20 @@ def misread_warnings(name: str, offset: dict) -> list[str]:
     return [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
 
 
-def unapplied_note(name: str, offset: dict) -> list[str]:
+def unapplied_note(name: str | None, offset: dict) -> list[str]:
     """The warning of an offset found but not applied: the search's best clear of zero and of its own lag, fitting
     at least ``MIN_GAIN`` times better than none, held back only by the log's halves disagreeing (the checks run in
     that order: :func:`estimate`), which a clock that drifts or an offset that changes mid-log gives. Every estimator
     judges it by this one rule (:func:`decide`, :func:`estimate`) and says this (:func:`note`), so none applies it:
     the warning says what was found and why not, for the stamps to be corrected at their source. Nothing otherwise
-    (no offset, or one applied: :func:`note`)."""
+    (no offset, or one applied: :func:`note`). ``name`` None: without an estimator's name (``slamobs info --noise``)."""
     why = offset.get("why_not_applied") or ""
     if offset["applied"] or not why.startswith(HALVES_DISAGREE):
         return []
     est, sigma = float(offset["estimate_s"]), offset["sigma_s"]
-    late = "late" if est < 0 else "early"
+    late, who = "late" if est < 0 else "early", f"{name}: " if name else ""
     return [
-        f"warning: {name}: the detection stamps look {abs(est):.3f} s {late} against the velocity clock "
+        f"warning: {who}the detection stamps look {abs(est):.3f} s {late} against the velocity clock "
         f"({est:+.4f} s ± {sigma:.2g} to add, {offset['pairs']} detection pairs; docs/observers.md, Time offset), "
         f"not applied: {why}; every estimator applies an offset by this one rule, so none does here: an offset that "
         "drifts or changes mid-log wants the detections' stamps corrected at their source"
