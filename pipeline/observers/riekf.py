@@ -768,6 +768,28 @@ def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
     return _mahalanobis3(s, z)
 
 
+@subroutine(types.none, fastmath=CONTRACT)
+def _linearisation(z, srr, sigma2, gate, lin, j):
+    """``lin[j] = [z]× Σ⁻_RR [z]×ᵀ`` when ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance
+    ``sigma2`` (as a detection error it alone would fail the gate), else left zero: the covariance of the term the
+    invariant model's ``H = [0, I, −I]`` drops, the correction's turn of the innovation itself (``−[z]× ξ_R``),
+    second order for a small innovation and metres after a blind stretch (docs/benchmarks.md, "riekf's
+    re-acquisition after a blind stretch"). Added to the detection's noise in the update (not in the gate) of a
+    frame whose only update is this detection: one detection of one point then moves the pose less along what it
+    cannot see; with two or more in the frame the update is the plain one (on all, the real logs' MR.CLAM runs lost
+    up to 0.09 m)."""
+    if (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) <= gate * sigma2:
+        return
+    k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
+    for a in range(3):
+        for b in range(3):
+            v = 0.0
+            for c in range(3):
+                for e in range(3):
+                    v += k[a][c] * srr[c, e] * k[b][e]
+            lin[j, a, b] = v
+
+
 @subroutine(types.float64, fastmath=CONTRACT)
 def _mahalanobis3(s, z):
     """``zᵀ S⁻¹ z`` for the 3×3 ``s`` (overwritten by its Cholesky factor L: ``|L⁻¹ z|²``); inf when S is not
@@ -1091,6 +1113,14 @@ def update(
     zi = np.empty(3)
     s3 = np.empty((3, 3))
     ues = np.zeros((nd, 3))  # each detection's range noise beyond the across one, along its line of sight R̂y/|y|
+    lin = np.zeros((nd, 3, 3))  # each detection's linearisation term (_linearisation)
+    srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
+    for a in range(3):
+        for b in range(3):
+            v = cov[a, b]
+            for k in range(6):
+                v += lt[k, a] * rt[k, b]
+            srr[a, b] = v
     sig2 = np.empty(nd)  # each detection's variance across its line of sight
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -1124,6 +1154,7 @@ def update(
         for c in range(3):
             zi[c] = -e[c]
         d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues, j, lt, rt, dp, s3)
+        _linearisation(zi, srr, sig2[j], gate, lin, j)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -1159,6 +1190,8 @@ def update(
         ns[_OPEN_GATED] = 0
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
+    if m > 1:  # two or more landmarks in the frame constrain the pose's turn: the plain update (_linearisation)
+        lin[:, :, :] = 0.0
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
@@ -1179,7 +1212,7 @@ def update(
                 for k in range(k3):
                     smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 for b in range(3):
-                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b]
+                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[jq, c, b]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
