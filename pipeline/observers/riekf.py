@@ -777,7 +777,10 @@ def _linearisation(z, srr, sigma2, gate, lin, j):
     re-acquisition after a blind stretch"). Added to the detection's noise in the update (not in the gate) of a
     frame whose only update is this detection: one detection of one point then moves the pose less along what it
     cannot see; with two or more in the frame the update is the plain one (on all, the real logs' MR.CLAM runs lost
-    up to 0.09 m)."""
+    up to 0.09 m). Not while :func:`_blind_check` judges a return after ``BLIND_S`` or more without a known landmark
+    (its first ``BLIND_WINDOW`` detections): its verdict (the pose beyond its covariance when nearly all fail the
+    gate) is on the plain updates, and a damped first update let later ones through a pose still 45° off (the
+    floor's gap log: the heading's re-opening bypassed, the track taken by a recovery later)."""
     if (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) <= gate * sigma2:
         return
     k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
@@ -1154,7 +1157,8 @@ def update(
         for c in range(3):
             zi[c] = -e[c]
         d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues, j, lt, rt, dp, s3)
-        _linearisation(zi, srr, sig2[j], gate, lin, j)
+        if ns[_ARMED] == 0:  # a return the blind check judges is updated plainly (_linearisation)
+            _linearisation(zi, srr, sig2[j], gate, lin, j)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
