@@ -779,8 +779,8 @@ def _linearisation(z, srr, sigma2, gate, lin, j):
     cannot see; with two or more in the frame the update is the plain one (on all, the real logs' MR.CLAM runs lost
     up to 0.09 m). Not while :func:`_blind_check` judges a return after ``BLIND_S`` or more without a known landmark
     (its first ``BLIND_WINDOW`` detections): its verdict (the pose beyond its covariance when nearly all fail the
-    gate) is on the plain updates, and a damped first update let later ones through a pose still 45° off (the
-    floor's gap log: the heading's re-opening bypassed, the track taken by a recovery later)."""
+    gate) is on the plain updates (damped, the floor's gap log let later ones through a pose 45° off: the check
+    did not act, a recovery took the track later)."""
     if (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) <= gate * sigma2:
         return
     k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
@@ -1116,14 +1116,6 @@ def update(
     zi = np.empty(3)
     s3 = np.empty((3, 3))
     ues = np.zeros((nd, 3))  # each detection's range noise beyond the across one, along its line of sight R̂y/|y|
-    lin = np.zeros((nd, 3, 3))  # each detection's linearisation term (_linearisation)
-    srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
-    for a in range(3):
-        for b in range(3):
-            v = cov[a, b]
-            for k in range(6):
-                v += lt[k, a] * rt[k, b]
-            srr[a, b] = v
     sig2 = np.empty(nd)  # each detection's variance across its line of sight
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -1157,8 +1149,6 @@ def update(
         for c in range(3):
             zi[c] = -e[c]
         d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues, j, lt, rt, dp, s3)
-        if ns[_ARMED] == 0:  # a return the blind check judges is updated plainly (_linearisation)
-            _linearisation(zi, srr, sig2[j], gate, lin, j)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -1194,8 +1184,16 @@ def update(
         ns[_OPEN_GATED] = 0
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
-    if m > 1:  # two or more landmarks in the frame constrain the pose's turn: the plain update (_linearisation)
-        lin[:, :, :] = 0.0
+    lin = np.zeros((1, 3, 3))  # the frame's only update's linearisation term (_linearisation)
+    if m == 1 and ns[_ARMED] == 0:  # two or more landmarks constrain the pose's turn, and a return the blind check
+        srr = np.empty((3, 3))  # judges is updated plainly; Σ⁻_RR: the attitude block with the pending propagation
+        for a in range(3):
+            for b in range(3):
+                v = cov[a, b]
+                for k in range(6):
+                    v += lt[k, a] * rt[k, b]
+                srr[a, b] = v
+        _linearisation(z, srr, sig2[sel[0]], gate, lin, 0)
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
@@ -1216,7 +1214,7 @@ def update(
                 for k in range(k3):
                     smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 for b in range(3):
-                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[jq, c, b]
+                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[0, c, b]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
