@@ -72,7 +72,8 @@ def test_one_pass_tiles_give_the_bits_of_the_rows(d, k):
 
 def _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise):
     """One frame as the textbook writes it: ``Σ⁻ = Φ (Σ + walk) Φᵀ + Q`` with ``Φ = I + F`` from the running sums,
-    then ``K = Σ⁻Hᵀ S⁻¹``, ``ξ̂ = K z``, ``Σ⁺ = Σ⁻ − K S Kᵀ`` (dense matrices, NumPy)."""
+    then ``K = Σ⁻Hᵀ S⁻¹``, ``ξ̂ = K z``, ``Σ⁺ = Σ⁻ − K S Kᵀ`` (dense matrices, NumPy); ``noise(Σ⁻_RR)``: the
+    detections' noise, which may depend on the propagated attitude block."""
     n = (d - N_FIXED) // 3
     f = np.zeros((d, 6))
     f[0:3, 0:3], f[3:6, 0:3], f[3:6, 3:6] = acc[0], acc[1], acc[0]
@@ -91,7 +92,7 @@ def _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise):
     prior[6:9, 6:9] += walk_w**2 * dt * np.eye(3)
     prior[9:12, 9:12] += walk_v**2 * dt * np.eye(3)
     prior = phi @ prior @ phi.T + q
-    s_mat = h @ prior @ h.T + noise
+    s_mat = h @ prior @ h.T + noise(prior[:3, :3])
     k = prior @ h.T @ np.linalg.inv(s_mat)
     return k @ z, prior - k @ s_mat @ k.T
 
@@ -126,7 +127,9 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
         h[3 * q : 3 * q + 3, 3:6] = np.eye(3)
         h[3 * q : 3 * q + 3, sl : sl + 3] = -np.eye(3)
         z[3 * q : 3 * q + 3] = r_hat @ det_y[q] + p_hat - lm[i]
-    xi, cov_exp = _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, np.diag(np.repeat(sigma2, 3)))
+    xi, cov_exp = _dense_frame(
+        cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, lambda srr: np.diag(np.repeat(sigma2, 3))
+    )
     a_exp, jl = so3_exp(-xi[:3]), so3_left_jacobian(-xi[:3])
     lm_exp = np.array([a_exp @ lm[i] - jl @ xi[N_FIXED + 3 * slot_of[i] :][:3] for i in range(n)])
     r_exp, p_exp = a_exp @ r_hat, a_exp @ p_hat - jl @ xi[3:6]
@@ -145,6 +148,70 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     assert d_out == d and ns[9] == 1 and ns[8] == 0  # no new landmark, none gated; one update
     assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max() and np.array_equal(cov, cov.T)
     for got, want in ((r_hat, r_exp), (p_hat, p_exp), (lm, lm_exp), (np.r_[b_om, b_v], b_exp)):
+        assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
+def linearisation_noise(z: np.ndarray, srr: np.ndarray, sigma2: float, gate: float) -> np.ndarray:
+    """A lone detection's noise in the update beyond ``σ²I``: ``[z]× Σ⁻_RR [z]×ᵀ`` (the covariance of the term
+    ``−[z]× ξ_R`` the invariant model's constant ``H`` drops) when ``|z|² tr Σ⁻_RR`` exceeds ``gate σ²``, else none."""
+    if z @ z * np.trace(srr) <= gate * sigma2:
+        return np.zeros((3, 3))
+    return skew(z) @ srr @ skew(z).T
+
+
+def test_a_lone_detection_far_off_is_updated_with_the_linearisations_dropped_term():
+    """A frame whose only detection is metres off while the attitude σ is about 15° (a return after a blind
+    stretch): its noise in the update is ``σ²I + [z]× Σ⁻_RR [z]×ᵀ``, the covariance of the turn of the innovation the
+    invariant ``H`` drops, since ``|z|² tr Σ⁻_RR`` is over the gate's ``σ²``; the frame still equals the dense
+    propagation then the dense Kalman update with that noise. With two or more detections in a frame the noise is
+    the law's alone (the test above)."""
+    rng = np.random.default_rng(27)
+    n = 6
+    d = N_FIXED + 3 * n
+    slot_of = rng.permutation(n)
+    slot_lm = np.argsort(slot_of)
+    a = rng.normal(size=(d, d))
+    cov = (a @ a.T + d * np.eye(d)) * 1e-3
+    lm = rng.normal(size=(n, 3)) * 5
+    acc = rng.normal(size=(5, 3, 3)) * 0.1
+    w = rng.normal(size=(6, 6)) * 0.1
+    w = w @ w.T
+    acc[2], acc[3], acc[4] = w[:3, :3], w[3:, :3], w[3:, 3:]
+    r_hat, p_hat = so3_exp(rng.normal(size=3)), rng.normal(size=3)
+    b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    i = 4
+    det_y = rng.normal(size=(1, 3)) * 3
+    law = np.array([0.02, 0.004, 0.0, 1.0, 0.0])
+    sigma2 = (law[0] + law[1] * np.linalg.norm(lm[i] - p_hat)) ** 2
+    gate, walk_w, walk_v, dt = 1000.0, 0.01, 0.02, 0.1
+    sl = N_FIXED + 3 * slot_of[i]
+    h = np.zeros((3, d))
+    h[:, 3:6], h[:, sl : sl + 3] = np.eye(3), -np.eye(3)
+    z = r_hat @ det_y[0] + p_hat - lm[i]
+
+    def noise(srr):
+        lin = linearisation_noise(z, srr, sigma2, gate)
+        assert lin.any() and z @ z * np.trace(srr) > gate * sigma2
+        return sigma2 * np.eye(3) + lin
+
+    xi, cov_exp = _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise)
+    xi_plain, _ = _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, lambda srr: sigma2 * np.eye(3))
+    assert np.linalg.norm(xi[:6]) < 0.9 * np.linalg.norm(xi_plain[:6])  # the pose moved less than plainly
+    a_exp, jl = so3_exp(-xi[:3]), so3_left_jacobian(-xi[:3])
+    r_exp, p_exp = a_exp @ r_hat, a_exp @ p_hat - jl @ xi[3:6]
+
+    lt, rt, dp = np.zeros((9, d)), np.zeros((9, d)), np.zeros((3, d))
+    assert propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
+    ns = np.zeros(N_SLOTS, dtype=np.int64)
+    d_out = update(
+        0, 1, np.array([i]), det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+        np.zeros(1, np.int64), np.zeros(3), lt, rt, dp, np.zeros((3, 3)), np.zeros((1, 3)), np.zeros((1, 3)), 0, ns,
+        gate, 1.0, np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_),
+        np.zeros(n, np.bool_), np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)), np.zeros(1), *correlation_arrays(n),
+    )  # fmt: skip
+    assert d_out == d and ns[9] == 1 and ns[8] == 0  # one update, not gated
+    assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max()
+    for got, want in ((r_hat, r_exp), (p_hat, p_exp)):
         assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
 
 
