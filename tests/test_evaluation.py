@@ -2268,3 +2268,33 @@ def test_a_convergence_the_tail_frame_decided_is_defined_and_drawn_in_that_frame
     )
     assert error_plot_job(conv, ev)[2]["band_label"] == "this whole-run fit's band"
     assert error_plot_job(whole, ev)[2]["band_label"] == "convergence band"
+
+
+def test_a_still_stretch_that_holds_the_ape_is_named_with_the_moving_poses_ape():
+    """seed=3657's hand-held rig stood still its first 30 s of 120: fast-adaptation's APE 0.476 m (its moving control
+    0.215) was mostly the place it stood, 0.69 m off after the path's drift, weighed a quarter of the pairs; nothing
+    said it. Now a note names the still share and the APE fitted on the moving pairs alone; the same estimate right
+    where it stood, and a truth that never stops with the same error at its start, get none."""
+    moving = make_truth()
+    n_still = 500  # 5 s at 100 Hz before the 15 s figure eight: a quarter of the poses
+    t = np.arange(n_still + len(moving), dtype=np.int64) * 10_000_000 + T0_NS
+    pos = np.vstack([np.repeat(moving.position[:1], n_still, axis=0), moving.position])
+    q = np.vstack([np.repeat(moving.quat_xyzw[:1], n_still, axis=0), moving.quat_xyzw])
+    truth = PoseStream("/mocap", "world", "body", t, t.copy(), pos, q)
+    rng = np.random.default_rng(7)
+
+    def report(truth, off_m):
+        poses = moved(truth, ROT_C, P_C, noise_m=0.02)
+        poses.loc[: n_still - 1, "x"] += off_m  # where the estimate stood (the first quarter of the poses)
+        poses["y"] += rng.normal(0.0, 0.02, len(poses))
+        rep = checked(build_report(poses, None, None, truth))
+        return rep, [n for n in rep["notes"] if "stands still" in n]
+
+    rep, notes = report(truth, 0.6)
+    assert len(notes) == 1, rep["notes"]
+    share = int(notes[0].split("still for ")[1].split("%")[0])  # the last 0.5 s before the path moves: not still
+    assert 20 <= share <= 25, notes[0]
+    alone = float(notes[0].split("the APE is ")[1].split(" m")[0])
+    assert alone < 0.5 * rep["ape"]["translation_m"]["rmse"], (alone, rep["ape"]["translation_m"]["rmse"])
+    assert report(truth, 0.0)[1] == []
+    assert report(make_truth(n_still + len(moving)), 0.6)[1] == []
