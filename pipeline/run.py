@@ -1235,28 +1235,16 @@ def _evaluate(
     or bad truth such as zero quaternions) becomes a note and ``report_error`` in run.json and the run still
     succeeds; only a failure to write (disk full) fails the run.
     """
-    from slamobs.pipeline import interrupts
-    from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
+    from slamobs.pipeline.evaluation import evaluate_tables, write_report
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
-    from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, aligned_rows
-    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
-    from slamobs.pipeline.evaluation.plot_worker import LocalFigures
-    from slamobs.pipeline.evaluation.trajectory_evaluation import offset_record, report_pose_column
+    from slamobs.pipeline.evaluation.report import add_run_context, aligned_rows
+    from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, drawn, run_figure_jobs
+    from slamobs.pipeline.evaluation.trajectory_evaluation import offset_record
     from slamobs.pipeline.writers import read_columns
 
-    wanted = {"poses": report_pose_column}
     rows = {}  # the aligned tables' rows, written while the report's threads finish (pipeline.evaluation.report)
     try:
-        # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
-        # the landmarks' are copied into landmarks_aligned.parquet), nor a reference estimator's columns the report
-        # does not use
-        handed = tables if tables is not None else {}
-        frames = {k: handed.pop(k, None) for k in REPORT_TABLES}  # handed over (the report frees each once used)
-        frames = {
-            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses", wanted=wanted.get(k)) if v is None else v
-            for k, v in frames.items()
-        }
+        frames = _report_tables(out, tables)
         plots = config.evaluation.plots
         own = []  # the run's own figures (trajectory, map, measurements) are none of the main ones
         if plots == "all":
@@ -1264,26 +1252,11 @@ def _evaluate(
                 {**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False
             )
         truth = truth_on_run_clock(streams, config)
-        # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
-        # 4-DoF (translation + yaw) alignment
-        options = ReportOptions(
-            t_max_diff_s=config.evaluation.t_max_diff,
-            convergence_threshold_m=config.evaluation.convergence_threshold,
-            **({"align": config.evaluation.align} if config.evaluation.align else {}),
-            gravity_aligned=gravity_aligned(metadata),
-            truth_rotation_xyzw=config.frames.truth_rotation,
-        )
+        options = _report_options(config, metadata)
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"]) if drawn(BIASES_PNG, plots) else None
         landmarks = frames["landmarks"]
-        early = figures = None
-        if plots:  # helpers draw while the report is computed; else drawn here at the end
-            early = plot_workers if plot_workers is not None else LocalFigures()
-            early.submit(own)
-
-            def figures(jobs: list) -> None:
-                early.submit(chosen(jobs, plots))
-
+        early, figures = _figure_helpers(plots, plot_workers, own)
         report, evaluation = evaluate_tables(
             frames,
             truth,
@@ -1323,20 +1296,82 @@ def _evaluate(
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands
         if "sink" in rows:  # closed before the files are removed
             rows["sink"].abort()
-        if (stop := interrupts.interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a bad truth
-            raise stop from None
-        if machine_failure(err):  # out of memory or threads: the run fails, never a run without its report
-            raise
-        for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
-            (out / name).unlink(missing_ok=True)
-        if isinstance(err, TruthUnusable):  # the caller reports without it
-            raise
-        reason = one_line(err) or type(err).__name__
-        if not isinstance(err, ValueError):
-            reason = f"{type(err).__name__}: {reason}"
+        reason = _failed_report(err, out)
         notes.append(f"no error report: {reason}")
         return None, reason
     finally:
         if "sink" in rows:  # an interruption: its files closed (nothing once write_report closed them)
             rows["sink"].abort()
     return report, None
+
+
+def _report_tables(out: Path, tables: dict | None) -> dict:
+    """The report's tables: those handed over in ``tables`` (taken out of it: the report frees each once used),
+    the others read from ``out``'s Parquet files. An observer's poses have no uncertainty: their null columns are
+    not read (the report needs none of them; the landmarks' are copied into landmarks_aligned.parquet), nor a
+    reference estimator's columns the report does not use."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import report_pose_column
+    from slamobs.pipeline.writers import read_columns
+
+    wanted = {"poses": report_pose_column}
+    handed = tables if tables is not None else {}
+    frames = {k: handed.pop(k, None) for k in REPORT_TABLES}
+    return {
+        k: read_columns(out / f"{k}.parquet", skip_null=k == "poses", wanted=wanted.get(k)) if v is None else v
+        for k, v in frames.items()
+    }
+
+
+def _report_options(config: RunConfig, metadata: dict):
+    """The report's options from the run's config. Observers that measure gravity fix roll and pitch: written in
+    the gravity frame, the report adds the 4-DoF (translation + yaw) alignment."""
+    from slamobs.pipeline.evaluation import ReportOptions
+    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
+
+    return ReportOptions(
+        t_max_diff_s=config.evaluation.t_max_diff,
+        convergence_threshold_m=config.evaluation.convergence_threshold,
+        **({"align": config.evaluation.align} if config.evaluation.align else {}),
+        gravity_aligned=gravity_aligned(metadata),
+        truth_rotation_xyzw=config.frames.truth_rotation,
+    )
+
+
+def _figure_helpers(plots, plot_workers, own: list) -> tuple:
+    """Where the figures are drawn (``plot_workers``, else a :class:`.LocalFigures`), handed the run's ``own``
+    figures at once, and the report's ``figures`` callback submitting its chosen jobs there; (None, None) without
+    plots. Helpers draw while the report is computed; else drawn at the end."""
+    from slamobs.pipeline.evaluation.figure_jobs import chosen
+    from slamobs.pipeline.evaluation.plot_worker import LocalFigures
+
+    if not plots:
+        return None, None
+    early = plot_workers if plot_workers is not None else LocalFigures()
+    early.submit(own)
+
+    def figures(jobs: list) -> None:
+        early.submit(chosen(jobs, plots))
+
+    return early, figures
+
+
+def _failed_report(err: Exception, out: Path) -> str:
+    """The one-line reason a report could not be made, its half-written files removed from ``out``; re-raises an
+    interruption (a SIGTERM or Ctrl-C, not a bad truth), a machine failure (out of memory or threads: the run
+    fails, never a run without its report) and :class:`.TruthUnusable` (the caller reports without it)."""
+    from slamobs.pipeline import interrupts
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES
+    from slamobs.pipeline.evaluation.report import REPORT_FILES
+
+    if (stop := interrupts.interruption(err)) is not None:
+        raise stop from None
+    if machine_failure(err):
+        raise err
+    for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
+        (out / name).unlink(missing_ok=True)
+    if isinstance(err, TruthUnusable):
+        raise err
+    reason = one_line(err) or type(err).__name__
+    if not isinstance(err, ValueError):
+        reason = f"{type(err).__name__}: {reason}"
+    return reason
