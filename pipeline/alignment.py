@@ -1070,17 +1070,9 @@ def align(
     om: Vec3Stream = streams.angular_velocity
     lv: Vec3Stream = streams.linear_velocity
     det: DetectionStream = streams.detections
-    body = body_frame_name(lv, body_frame)
     body_from = body_frame_origin(lv, body_frame, lv.topic if lv is not None else None)
-    ident = {f.lstrip("/") for f in identity_frames}
-    override = frozenset(f.lstrip("/") for f in override_identity)
-    tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
-    _check_frames(streams, tf, body_frame, ident, override)
-    _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
-    _stamps_at_record_pace(streams.path, time_source, streams, (om, "angular velocity"), (lv, "linear velocity"))
-    dropped = streams.static_tf_dropped
-    frame = _Frame(tf, body, ident, time_source, [], override, dropped)
-    dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
+    frame, dir_frame = _checked_frames(streams, body_frame, time_source, identity_frames, override_identity)
+    tf, body = frame.tf, frame.body
 
     warn = WarnOnly()
     accel, magnetic, gyro_moved_s = streams.accel, streams.magnetic, 0.0
@@ -1091,16 +1083,9 @@ def align(
     )
     gyro_turn = None
     if twist is not None and twist.topic != om.topic:
-        if twist.topic == lv.topic:
-            frame.notes.append(warn.add(_odometry_stuck, lv, twist, time_source, t_om, omega, om.topic))
-        if twist.frame_id.lstrip("/") in ("", body):  # the odometry's twist is in the body frame
-            # not warn-only: the detection pairs' gyro-misread check reads the turn (AlignedStream.gyro_turn)
-            gyro_turn = _gyro_turn(t_om, omega, twist, _times(twist, time_source), om)
-            frame.notes.extend(_gyro_axes(gyro_turn, twist.topic))
+        gyro_turn = _odometry_twist_checks(frame, warn, twist, om, lv, t_om, omega)
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
-    topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
-    if det is not None:
-        topics.update(detections=det.topic, camera=", ".join(det.cameras) if det.cameras else det.frame_id)
+    topics = _role_topics(om, lv, det)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     if release:
@@ -1111,12 +1096,7 @@ def align(
     )
     accel_blocks = None
     if accel is not None and accel.topic == gyro_topic:  # the IMU's own accelerometer
-        head = _accel_head(accel, t_om)
-        if keep_accel:
-            accel_blocks = _accel_blocks(replace(dir_frame, notes=[]), accel, t_om)
-        dir_frame.notes.append(
-            warn.add(_gyro_by_gravity, replace(dir_frame, notes=[]), head, t_om, omega, velocity, unique=True)
-        )
+        accel_blocks = _imu_accel_checks(dir_frame, warn, accel, t_om, omega, velocity, keep_accel)
     del accel, magnetic
     if release:
         streams.detections = None
@@ -1132,11 +1112,7 @@ def align(
         base = _base_frame(tf, body)
         notes[:0] = [body_frame_note(body, body_from), *base_placed_note(body, base)]  # an odometry's child frame
     if w is not None:
-        notes.append(
-            f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
-            f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
-            f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)"
-        )
+        notes.append(_accel_weights_note(w))
     notes = warn.placed(notes)
     if not warn_only_later:
         notes, warn = warn.joined(notes, warn.run()), None
@@ -1166,6 +1142,69 @@ def align(
         velocity_period_ns=lv_gaps[1],
         bridged_gaps=lv_gaps[2],
         accel_blocks=accel_blocks,
+    )
+
+
+def _checked_frames(
+    streams: LogStreams,
+    body_frame: str | None,
+    time_source: str,
+    identity_frames: tuple[str, ...],
+    override_identity: tuple[str, ...],
+) -> tuple[_Frame, _Frame]:
+    """The frames the velocities and detections (first) and the directions (second, their notes kept apart) are
+    moved into, once the log's frames, clock resets and stamp pace are checked (each raising an InputError)."""
+    om, lv = streams.angular_velocity, streams.linear_velocity
+    body = body_frame_name(lv, body_frame)
+    ident = {f.lstrip("/") for f in identity_frames}
+    override = frozenset(f.lstrip("/") for f in override_identity)
+    tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
+    _check_frames(streams, tf, body_frame, ident, override)
+    _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
+    _stamps_at_record_pace(streams.path, time_source, streams, (om, "angular velocity"), (lv, "linear velocity"))
+    dropped = streams.static_tf_dropped
+    frame = _Frame(tf, body, ident, time_source, [], override, dropped)
+    return frame, _Frame(tf, body, ident, time_source, [], override, dropped)
+
+
+def _odometry_twist_checks(fr: _Frame, warn: WarnOnly, twist: Vec3Stream, om: Vec3Stream, lv, t_om, omega):
+    """The odometry's twist ``twist`` (on another topic than the gyro ``om``) against the gyro: a stuck odometry
+    (warn-only, when it also gives the velocity ``lv``), and the turn of a body-frame twist against the gyro's with
+    its notes on ``fr`` (not warn-only: the detection pairs' gyro-misread check reads it, ``AlignedStream.gyro_turn``;
+    None for a twist in another frame)."""
+    if twist.topic == lv.topic:
+        fr.notes.append(warn.add(_odometry_stuck, lv, twist, fr.time_source, t_om, omega, om.topic))
+    if twist.frame_id.lstrip("/") not in ("", fr.body):
+        return None
+    gyro_turn = _gyro_turn(t_om, omega, twist, _times(twist, fr.time_source), om)
+    fr.notes.extend(_gyro_axes(gyro_turn, twist.topic))
+    return gyro_turn
+
+
+def _role_topics(om: Vec3Stream, lv: Vec3Stream, det: DetectionStream | None) -> dict[str, str]:
+    """The topic of each role the run reads (``AlignedStream.topics``), the detections' cameras or frame too."""
+    topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
+    if det is not None:
+        topics.update(detections=det.topic, camera=", ".join(det.cameras) if det.cameras else det.frame_id)
+    return topics
+
+
+def _imu_accel_checks(fr: _Frame, warn: WarnOnly, accel: Vec3Stream, t_om, omega, velocity, keep: bool):
+    """The IMU's own accelerometer ``accel`` (on the gyro's topic): the gyro's scale against gravity (warn-only,
+    its note on ``fr``) and, when ``keep``, the accelerometer's blocks for the time offset's velocity-scale check
+    (``AlignedStream.accel_blocks``, else None)."""
+    head = _accel_head(accel, t_om)
+    blocks = _accel_blocks(replace(fr, notes=[]), accel, t_om) if keep else None
+    fr.notes.append(warn.add(_gyro_by_gravity, replace(fr, notes=[]), head, t_om, omega, velocity, unique=True))
+    return blocks
+
+
+def _accel_weights_note(w: np.ndarray) -> str:
+    """How many direction samples the accelerometer's weights ``w`` down-weighted or skipped as accelerating."""
+    return (
+        f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
+        f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
+        f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)"
     )
 
 

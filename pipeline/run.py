@@ -756,9 +756,9 @@ def estimate(
     (:meth:`.TableWriter.kept`). A landmark whose detections jump (:func:`.landmark_jumps`) raises
     :class:`_LandmarksJumped` unless ``split`` lists the jumps already split (or a known map fixes the ids)."""
     from slamobs.pipeline import interrupts, output_frame
-    from slamobs.pipeline.writers import BackgroundWrites, TableWriter, landmark_table
+    from slamobs.pipeline.writers import BackgroundWrites, TableWriter
 
-    log, streams, aligned, tags = prepared.log, prepared.streams, prepared.aligned, prepared.tags
+    log, aligned, tags = prepared.log, prepared.aligned, prepared.tags
     spec, gains, options = est.spec, est.gains, est.options
     frame_choice = output_frame.parse_frame(config.output.frame)
     frame = None
@@ -788,18 +788,7 @@ def estimate(
             if innovations is not None:
                 innovations.add(part)
             if frame is None:  # fixed from the first stretch, before anything is written
-                frame = output_frame.resolve(
-                    frame_choice,
-                    part,
-                    aligned=aligned,
-                    log=log,
-                    gravity=config.directions.gravity,
-                    truth=truth_on_run_clock(streams, config),
-                    t_max_diff=config.evaluation.t_max_diff,
-                    uses_directions=spec.min_directions > 0,
-                    known_map=prepared.known_map is not None,
-                    notes=notes,
-                )
+                frame = _output_frame(frame_choice, part, prepared, config, spec, notes)
                 metadata["output"]["frame"] = frame.describe()
                 writes = BackgroundWrites(partial(_write_stretch, sink, frame))
             # the map as it is now: the observer moves its live map on while this stretch is written
@@ -809,39 +798,12 @@ def estimate(
         t_end = time.perf_counter()
         observer_s += t_end - t  # the whole run's checks, made while the last stretch is written (spec.chunks)
         part = writes.finish()  # the last stretch, in the output frame
-        sink.write(
-            {
-                "landmarks": landmark_table(
-                    part.landmark_ids,
-                    part.landmark_xyz,
-                    np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
-                    aligned.det_ids,
-                    landmark_cov=part.landmark_cov,
-                )
-            }
-        )
-        metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
-        metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
-        notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
-        notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
-        notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
-        checks = part.stats.get("metadata", {})
-        notes += lost_note(spec.name, checks.get("resightings"), checks.get("velocity_bias"))
-        notes += held_bias_note(spec.name, checks.get("bias_held"))
+        _write_map(sink, part, aligned)
+        _record_estimator(spec, part, aligned, options, t0_ns, metadata, notes)
         if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
-            # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
-            jumps = landmark_jumps(*innovations.arrays()) or checks.get("start_landmark_jumps", [])
-            # after a misread input the detections named, the jumps are the lost pose's: not split (round 7)
-            lost = time_offset_misread(checks.get("time_offset"))
-            if jumps and split is None and prepared.known_map is None and not lost:
-                raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
-            if split:  # where the run made again put each split landmark's two places
-                split_places(split, part.landmark_ids, part.landmark_xyz, part.landmark_cov)
-            metadata["observer"]["landmark_jumps"] = (split or []) + jumps
-            notes += jump_note(spec.name, split or [], t0_ns, topics=aligned.topics)
-            notes += jump_note(spec.name, jumps, t0_ns, lost and not split, aligned.topics)
+            _record_jumps(spec.name, part, innovations, prepared.known_map, split, aligned, t0_ns, metadata, notes)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
-        metadata["output"]["clock"] = output_clock(checks.get("time_offset"))
+        metadata["output"]["clock"] = output_clock(part.stats.get("metadata", {}).get("time_offset"))
         stage_timings = dict(part.timings)
         del part
         if release:
@@ -857,6 +819,76 @@ def estimate(
     # parts of observer_s (batch: seed_s, smoother_s); the writer's own time (it overlaps the observer) and the
     # landmarks and footers after the last stretch
     return {"observer_s": observer_s, **stage_timings, "write_s": writes.busy_s + time.perf_counter() - t_end}
+
+
+def _output_frame(
+    frame_choice, part: ObserverResult, prepared: PreparedLog, config: RunConfig, spec: ObserverSpec, notes
+):
+    """The output frame (:func:`.output_frame.resolve`), fixed from the first stretch ``part`` before anything
+    is written: every later stretch is written in it."""
+    from slamobs.pipeline import output_frame
+
+    return output_frame.resolve(
+        frame_choice,
+        part,
+        aligned=prepared.aligned,
+        log=prepared.log,
+        gravity=config.directions.gravity,
+        truth=truth_on_run_clock(prepared.streams, config),
+        t_max_diff=config.evaluation.t_max_diff,
+        uses_directions=spec.min_directions > 0,
+        known_map=prepared.known_map is not None,
+        notes=notes,
+    )
+
+
+def _write_map(sink, part: ObserverResult, aligned: AlignedStream) -> None:
+    """The map of the last stretch ``part`` (in the output frame) into ``sink``'s landmarks table, each landmark
+    with the stamps of its detections."""
+    from slamobs.pipeline.writers import landmark_table
+
+    sink.write(
+        {
+            "landmarks": landmark_table(
+                part.landmark_ids,
+                part.landmark_xyz,
+                np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
+                aligned.det_ids,
+                landmark_cov=part.landmark_cov,
+            )
+        }
+    )
+
+
+def _record_estimator(spec, part, aligned: AlignedStream, options, t0_ns: int, metadata: dict, notes: list[str]):
+    """What the finished estimator says about its run, added to ``metadata``'s counts and to ``notes``: capped
+    intervals, segments, blind stretches, its own notes, a lost pose, a held bias."""
+    metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
+    metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
+    notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
+    notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
+    notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
+    checks = part.stats.get("metadata", {})
+    notes += lost_note(spec.name, checks.get("resightings"), checks.get("velocity_bias"))
+    notes += held_bias_note(spec.name, checks.get("bias_held"))
+
+
+def _record_jumps(name, part, innovations, known_map, split, aligned, t0_ns, metadata: dict, notes: list[str]):
+    """The landmarks whose detections jump in a gated estimator's innovations, recorded in ``metadata`` and
+    ``notes``; raises :class:`_LandmarksJumped` for a first run that should be made again with them split
+    (``split``: the jumps already split, placed here in the run made again)."""
+    checks = part.stats.get("metadata", {})
+    # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
+    jumps = landmark_jumps(*innovations.arrays()) or checks.get("start_landmark_jumps", [])
+    # after a misread input the detections named, the jumps are the lost pose's: not split (round 7)
+    lost = time_offset_misread(checks.get("time_offset"))
+    if jumps and split is None and known_map is None and not lost:
+        raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
+    if split:  # where the run made again put each split landmark's two places
+        split_places(split, part.landmark_ids, part.landmark_xyz, part.landmark_cov)
+    metadata["observer"]["landmark_jumps"] = (split or []) + jumps
+    notes += jump_note(name, split or [], t0_ns, topics=aligned.topics)
+    notes += jump_note(name, jumps, t0_ns, lost and not split, aligned.topics)
 
 
 class _LandmarksJumped(Unwind):
@@ -1203,28 +1235,16 @@ def _evaluate(
     or bad truth such as zero quaternions) becomes a note and ``report_error`` in run.json and the run still
     succeeds; only a failure to write (disk full) fails the run.
     """
-    from slamobs.pipeline import interrupts
-    from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
+    from slamobs.pipeline.evaluation import evaluate_tables, write_report
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
-    from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, aligned_rows
-    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
-    from slamobs.pipeline.evaluation.plot_worker import LocalFigures
-    from slamobs.pipeline.evaluation.trajectory_evaluation import offset_record, report_pose_column
+    from slamobs.pipeline.evaluation.report import add_run_context, aligned_rows
+    from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, drawn, run_figure_jobs
+    from slamobs.pipeline.evaluation.trajectory_evaluation import offset_record
     from slamobs.pipeline.writers import read_columns
 
-    wanted = {"poses": report_pose_column}
     rows = {}  # the aligned tables' rows, written while the report's threads finish (pipeline.evaluation.report)
     try:
-        # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
-        # the landmarks' are copied into landmarks_aligned.parquet), nor a reference estimator's columns the report
-        # does not use
-        handed = tables if tables is not None else {}
-        frames = {k: handed.pop(k, None) for k in REPORT_TABLES}  # handed over (the report frees each once used)
-        frames = {
-            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses", wanted=wanted.get(k)) if v is None else v
-            for k, v in frames.items()
-        }
+        frames = _report_tables(out, tables)
         plots = config.evaluation.plots
         own = []  # the run's own figures (trajectory, map, measurements) are none of the main ones
         if plots == "all":
@@ -1232,26 +1252,11 @@ def _evaluate(
                 {**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False
             )
         truth = truth_on_run_clock(streams, config)
-        # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
-        # 4-DoF (translation + yaw) alignment
-        options = ReportOptions(
-            t_max_diff_s=config.evaluation.t_max_diff,
-            convergence_threshold_m=config.evaluation.convergence_threshold,
-            **({"align": config.evaluation.align} if config.evaluation.align else {}),
-            gravity_aligned=gravity_aligned(metadata),
-            truth_rotation_xyzw=config.frames.truth_rotation,
-        )
+        options = _report_options(config, metadata)
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"]) if drawn(BIASES_PNG, plots) else None
         landmarks = frames["landmarks"]
-        early = figures = None
-        if plots:  # helpers draw while the report is computed; else drawn here at the end
-            early = plot_workers if plot_workers is not None else LocalFigures()
-            early.submit(own)
-
-            def figures(jobs: list) -> None:
-                early.submit(chosen(jobs, plots))
-
+        early, figures = _figure_helpers(plots, plot_workers, own)
         report, evaluation = evaluate_tables(
             frames,
             truth,
@@ -1291,20 +1296,82 @@ def _evaluate(
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands
         if "sink" in rows:  # closed before the files are removed
             rows["sink"].abort()
-        if (stop := interrupts.interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a bad truth
-            raise stop from None
-        if machine_failure(err):  # out of memory or threads: the run fails, never a run without its report
-            raise
-        for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
-            (out / name).unlink(missing_ok=True)
-        if isinstance(err, TruthUnusable):  # the caller reports without it
-            raise
-        reason = one_line(err) or type(err).__name__
-        if not isinstance(err, ValueError):
-            reason = f"{type(err).__name__}: {reason}"
+        reason = _failed_report(err, out)
         notes.append(f"no error report: {reason}")
         return None, reason
     finally:
         if "sink" in rows:  # an interruption: its files closed (nothing once write_report closed them)
             rows["sink"].abort()
     return report, None
+
+
+def _report_tables(out: Path, tables: dict | None) -> dict:
+    """The report's tables: those handed over in ``tables`` (taken out of it: the report frees each once used),
+    the others read from ``out``'s Parquet files. An observer's poses have no uncertainty: their null columns are
+    not read (the report needs none of them; the landmarks' are copied into landmarks_aligned.parquet), nor a
+    reference estimator's columns the report does not use."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import report_pose_column
+    from slamobs.pipeline.writers import read_columns
+
+    wanted = {"poses": report_pose_column}
+    handed = tables if tables is not None else {}
+    frames = {k: handed.pop(k, None) for k in REPORT_TABLES}
+    return {
+        k: read_columns(out / f"{k}.parquet", skip_null=k == "poses", wanted=wanted.get(k)) if v is None else v
+        for k, v in frames.items()
+    }
+
+
+def _report_options(config: RunConfig, metadata: dict):
+    """The report's options from the run's config. Observers that measure gravity fix roll and pitch: written in
+    the gravity frame, the report adds the 4-DoF (translation + yaw) alignment."""
+    from slamobs.pipeline.evaluation import ReportOptions
+    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
+
+    return ReportOptions(
+        t_max_diff_s=config.evaluation.t_max_diff,
+        convergence_threshold_m=config.evaluation.convergence_threshold,
+        **({"align": config.evaluation.align} if config.evaluation.align else {}),
+        gravity_aligned=gravity_aligned(metadata),
+        truth_rotation_xyzw=config.frames.truth_rotation,
+    )
+
+
+def _figure_helpers(plots, plot_workers, own: list) -> tuple:
+    """Where the figures are drawn (``plot_workers``, else a :class:`.LocalFigures`), handed the run's ``own``
+    figures at once, and the report's ``figures`` callback submitting its chosen jobs there; (None, None) without
+    plots. Helpers draw while the report is computed; else drawn at the end."""
+    from slamobs.pipeline.evaluation.figure_jobs import chosen
+    from slamobs.pipeline.evaluation.plot_worker import LocalFigures
+
+    if not plots:
+        return None, None
+    early = plot_workers if plot_workers is not None else LocalFigures()
+    early.submit(own)
+
+    def figures(jobs: list) -> None:
+        early.submit(chosen(jobs, plots))
+
+    return early, figures
+
+
+def _failed_report(err: Exception, out: Path) -> str:
+    """The one-line reason a report could not be made, its half-written files removed from ``out``; re-raises an
+    interruption (a SIGTERM or Ctrl-C, not a bad truth), a machine failure (out of memory or threads: the run
+    fails, never a run without its report) and :class:`.TruthUnusable` (the caller reports without it)."""
+    from slamobs.pipeline import interrupts
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES
+    from slamobs.pipeline.evaluation.report import REPORT_FILES
+
+    if (stop := interrupts.interruption(err)) is not None:
+        raise stop from None
+    if machine_failure(err):
+        raise err
+    for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
+        (out / name).unlink(missing_ok=True)
+    if isinstance(err, TruthUnusable):
+        raise err
+    reason = one_line(err) or type(err).__name__
+    if not isinstance(err, ValueError):
+        reason = f"{type(err).__name__}: {reason}"
+    return reason

@@ -171,22 +171,15 @@ def evaluate_tables(
     # started once the trajectories are paired where the alignment has no scale (its scale is 1: the section needs
     # no more), else once the alignment is fitted
     segments, beside = SegmentErrorsSection(), []
-    if options.align not in SCALED_ALIGNMENTS:
-
-        def on_pairs(paired: Paired, truth_sorted: PoseStream) -> None:
-            beside.append(_beside(segments.process_pairs, len(paired), paired, truth_sorted, options.align, 1.0))
-
-    else:
-        on_pairs = None
+    on_pairs = _segments_on_pairs(segments, options.align, beside)
     # ``ev.estimate`` holds all; judged: a truth too short to judge the run by is TruthUnusable
     ev = evaluate_trajectory(
         poses, truth, options, checked=True, judged=True, on_pairs=on_pairs, found_offset=found_offset
     )
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
-    landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
-    gauge = None if ev.gauge is None else ev.gauge[1:]  # the frame the map's Σ is defined in
-    landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]), gauge)
+    landmarks = tables.pop("landmarks", None)
+    landmark = _landmark_section(landmarks, landmark_truth, ev)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
         figures(
             [
@@ -226,12 +219,46 @@ def evaluate_tables(
         segments_done.result()
     if figures is not None:
         figures(segment_plot_jobs(segments.arrays))
+    return _report(sections, ev, truth, options, _report_notes(invalid, sections)), ev
+
+
+def _segments_on_pairs(segments: SegmentErrorsSection, align: str, beside: list) -> Callable | None:
+    """Where the alignment has no scale (its scale is 1: the segment errors need no more), the callback that starts
+    the segment errors beside the other sections (into ``beside``) once the trajectories are paired; else None (they
+    start once the alignment is fitted)."""
+    if align in SCALED_ALIGNMENTS:
+        return None
+
+    def on_pairs(paired: Paired, truth_sorted: PoseStream) -> None:
+        beside.append(_beside(segments.process_pairs, len(paired), paired, truth_sorted, align, 1.0))
+
+    return on_pairs
+
+
+def _landmark_section(landmarks: Table | None, landmark_truth, ev: TrajectoryEvaluation) -> LandmarkSection:
+    """The map's section: the ``landmarks`` table against ``landmark_truth`` through the trajectory's alignment, the
+    map's Σ in the frame of the evaluation's gauge."""
+    landmark = LandmarkSection(landmark_truth)
+    gauge = None if ev.gauge is None else ev.gauge[1:]  # the frame the map's Σ is defined in
+    landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]), gauge)
+    return landmark
+
+
+def _report_notes(invalid: int, sections: dict) -> list[str]:
+    """The report's notes: ``invalid`` truth poses dropped, then the sections' own (APE, map, time offset, APE by
+    alignment, RPE) and the NEES against a turned truth."""
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    nees = nees_against_turned_truth(sections["ape"].result["truth_frame_turn"], uncertainty.notes)
-    notes += sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + nees
-    report = {
+    nees = nees_against_turned_truth(sections["ape"].result["truth_frame_turn"], sections["uncertainty"].notes)
+    notes += sections["ape"].notes + sections["landmarks"].notes + sections["time_offset"].notes
+    return notes + sections["ape_by_alignment"].notes + sections["rpe"].notes + nees
+
+
+def _report(sections: dict, ev: TrajectoryEvaluation, truth: PoseStream, options: ReportOptions, notes: list) -> dict:
+    """The report (``report.json``'s content): each section's statistic, the time spans, the truth's source, the evo
+    commands, ``notes``, the options and the method."""
+    return {
         "schema_version": SCHEMA_VERSION,
         **{name: section.get_statistic() for name, section in sections.items()},
         "time_span": {
@@ -248,7 +275,6 @@ def evaluate_tables(
         },
         "method": _method(ev, options, sections.values()),
     }
-    return report, ev
 
 
 def _beside(func: Callable[..., None], n_pairs: int, *args) -> Pending | None:

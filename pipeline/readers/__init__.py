@@ -159,13 +159,7 @@ def read_log(
         )
         tf_rows: dict[str, TfRows] = {}
         reports: dict[str, list[tuple[str, Cleaning]]] = defaultdict(list)  # topic -> (role, cleaning)
-
-        def note(topic: str, role: str, cleaning: Cleaning) -> None:
-            reports[topic].append((role, cleaning))
-            stream = getattr(streams, role, None)
-            left = (stream.ids.shape[0] if role == "detections" else len(stream)) if stream is not None else 0
-            if cleaning.nonfinite and not left and role in REQUIRED_ROLES:
-                raise InputError(path, f"{_every_one(cleaning.nonfinite, role)} NaN or Inf ({role})", topic)
+        note = functools.partial(_note_cleaning, path, streams, reports)
 
         def tf_of(topic: str) -> TfRows:
             if topic not in tf_rows:
@@ -194,30 +188,17 @@ def read_log(
             elif role == "detections" and topic in multi:
                 _camera_topics(reader, path, table, selection.multi["detections"], streams, note, images, progress)
             elif role == "camera_info":
-                for info_topic in selection.multi["camera_info"]:
-                    model, warnings = decode_camera_info(reader, path, info_topic, table[info_topic][1])
-                    streams.camera_info.append(model)
-                    streams.warnings += warnings
+                _read_camera_infos(reader, path, table, selection.multi["camera_info"], streams)
             elif role == "detections":
                 if meta.msgtype in TF_TYPES:
                     streams.detections, cleaning = tag_detections(tf_of(topic), str(selection.tag_pattern), path)
                 else:
-                    found = detections.pop(topic)
-                    streams.detections, cleaning = ahead(detection_stream, found) if isinstance(found, Rows) else found
-                    del found
+                    streams.detections, cleaning = _decoded_detections(detections.pop(topic), ahead)
                 note(topic, role, cleaning)
-            elif role == "static_tf":
-                streams.static_tf, warnings, dropped, streams.static_tf_changed = static_transforms(tf_of(topic))
-                streams.warnings += static_tf_notes(topic, warnings)
-                streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
-            elif role == "tf":
-                streams.tf, warnings = transform_series(tf_of(topic), on_record_time=clocks == "record")
-                streams.warnings += [f"{topic}: {w}" for w in warnings]
+            elif role in ("static_tf", "tf"):
+                _read_transforms(role, topic, tf_of(topic), streams, on_record_time=clocks == "record")
             elif role == "sim_truth":
-                landmarks, bias, warnings, streams.recorded = decode_sim_truth(reader, path, topic, conns)
-                streams.landmark_truth = landmarks or None
-                streams.bias_truth = bias or None
-                streams.warnings += warnings
+                _read_sim_truth(reader, path, topic, conns, streams)
             if last_use[topic] == k:  # decoded columns no longer needed (streams keep what they share)
                 rows.pop(topic, None)
         if selection.truth_edge is not None:
@@ -226,11 +207,63 @@ def read_log(
         streams.warnings[:0] = damage_notes(reader)
         streams.missing_spans = missing_spans(reader)
 
-    at = len(streams.warnings)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
+    return _on_chosen_clocks(streams, clocks, reports)
+
+
+def _note_cleaning(path: Path, streams: LogStreams, reports, topic: str, role: str, cleaning: Cleaning) -> None:
+    """A role's ``cleaning`` kept in ``reports`` (topic -> (role, cleaning)); an InputError when a required role's
+    stream in ``streams`` has no sample left once its NaN or Inf ones are dropped."""
+    reports[topic].append((role, cleaning))
+    stream = getattr(streams, role, None)
+    left = (stream.ids.shape[0] if role == "detections" else len(stream)) if stream is not None else 0
+    if cleaning.nonfinite and not left and role in REQUIRED_ROLES:
+        raise InputError(path, f"{_every_one(cleaning.nonfinite, role)} NaN or Inf ({role})", topic)
+
+
+def _read_camera_infos(reader, path: Path, table, topics, streams: LogStreams) -> None:
+    """Each ``camera_info`` topic's camera model into ``streams.camera_info``, its warnings into the streams'."""
+    for info_topic in topics:
+        model, warnings = decode_camera_info(reader, path, info_topic, table[info_topic][1])
+        streams.camera_info.append(model)
+        streams.warnings += warnings
+
+
+def _decoded_detections(found, ahead: _StreamsAhead) -> tuple:
+    """The detection stream and its cleaning from what the pass over the log ``found`` for the detections topic:
+    rows still to decode (on the reading thread, ``ahead``), or the stream already made."""
+    return ahead(detection_stream, found) if isinstance(found, Rows) else found
+
+
+def _read_transforms(role: str, topic: str, rows: TfRows, streams: LogStreams, *, on_record_time: bool) -> None:
+    """A ``static_tf`` or ``tf`` topic's decoded rows into the streams' static transforms (with those dropped or
+    changed) or transform series, their warnings into the streams' named by ``topic``."""
+    if role == "static_tf":
+        streams.static_tf, warnings, dropped, streams.static_tf_changed = static_transforms(rows)
+        streams.warnings += static_tf_notes(topic, warnings)
+        streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
+    else:
+        streams.tf, warnings = transform_series(rows, on_record_time=on_record_time)
+        streams.warnings += [f"{topic}: {w}" for w in warnings]
+
+
+def _read_sim_truth(reader, path: Path, topic: str, conns, streams: LogStreams) -> None:
+    """A simulated log's truth topic: the landmarks' and biases' truth, what the log records (its tag family),
+    and its warnings, into ``streams``."""
+    landmarks, bias, warnings, streams.recorded = decode_sim_truth(reader, path, topic, conns)
+    streams.landmark_truth = landmarks or None
+    streams.bias_truth = bias or None
+    streams.warnings += warnings
+
+
+def _on_chosen_clocks(
+    streams: LogStreams, clocks: str | Mapping[str, str] | None, reports: Mapping[str, list[tuple[str, Cleaning]]]
+) -> LogStreams:
+    """The streams on the clocks chosen (:func:`_clocked`), the cleaning ``reports`` described among the warnings
+    on the clock the run reads each topic on (known once the clocks are chosen)."""
+    at = len(streams.warnings)
     streams = _clocked(streams, clocks, _stepped(reports))
-    # described on the clock the run reads each topic on (known once the clocks are chosen)
     streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
     return streams
 

@@ -329,6 +329,71 @@ class BatchSmoother(Stepper):
         if (reason := cands.why_other_starts(full, first, int(kf_t.shape[0]))) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
         keyframes = (kf_t, kf_of_det, gaps)
+        chosen, levels, level_notes = self._noise_levels(chosen, keyframes, segments, progress)
+        chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
+        problem, sol = chosen.problem, chosen.sol
+        stats = g.residual_statistics(problem, sol)
+        stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
+        t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
+        gauge, cov_kf, pose_cov, landmark_cov, (t_cov, c_cov) = _marginals(kf_t, problem, sol)
+        self.result = {
+            "kf_t": kf_t,
+            "kf_of_det": kf_of_det,
+            "segments": segments,
+            "solution": sol,
+            "seed": seed,
+            "cov_t": kf_t[cov_kf],
+            "pose_cov": pose_cov,
+            "landmark_cov": landmark_cov,
+        }
+        summary, seconds = self._summary(sol, chosen.seed.name, stats)
+        if robust is not None:
+            summary["robust"] = robust[0]
+        summary.update(levels)
+        summary["detection_inverse_depth"] = self.inverse_depth_record
+        if self.inverse_depth is not None:  # the levels the final solution used
+            summary["detection_inverse_depth"] |= idp.record(
+                *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
+            )
+        summary["seed_check"] = seed_check
+        summary["covariance_gauge"] = gauge_record(kf_t, gauge)
+        summary["floor"] = self._floor_record(problem, sol)
+        self.stats["substeps"] = int(kf_t.shape[0])
+        self.stats["metadata"] = {
+            "seed": chosen.seed.name,
+            "smoother": summary,
+            "noise": self.noise.as_dict(),
+            "time_offset": self.time_offset,
+            # a start's (riekf's) innovations jumping: the run splits those landmarks as it does its own
+            "start_landmark_jumps": self.start_jumps,
+        }
+        self.stats["notes"] = [robust[1]] if robust is not None else []
+        self.stats["notes"] += self.law_notes + level_notes
+        self.stats["notes"] += seed_notes + self._floor_note() + gauge_note(summary["covariance_gauge"])
+        self.stats["notes"] += list(chosen.notes or [])
+        self.stats["notes"] += time_offset_note("batch", self.time_offset)
+        self.timings.update(
+            {
+                "seed_s": seed_s,
+                # the other starts' observer runs happen inside the solve's timer: counted once, in seed_s (the
+                # CPU figure still holds them)
+                "smoother_s": t_solve - (seed_s - seed.seconds),
+                "smoother_cpu_s": c_solve,
+                # the poses' and landmarks' marginals written to the tables (not the bias's, inside the solve)
+                "pose_landmark_covariance_s": t_cov,
+                "pose_landmark_covariance_cpu_s": c_cov,
+                **{f"smoother_{k}_s": v for k, v in seconds.items()},
+            }
+        )
+        return summary
+
+    def _noise_levels(self, chosen, keyframes: tuple, segments: _Segments, progress) -> tuple:
+        """The noise model refined on the solution ``chosen``, a pass at a time, each solving again: detection
+        noise at the predicted ranges, the noise levels (evidence or cross-validation), range against bearing (the
+        motion levels scanned again when it applies), time-correlated detections, the held velocity's level (the
+        detections' model again at it), the detection law's level. The last solution, each pass's record (the
+        summary's ``noise_scale``, ``held_velocity``, ``detection_correlation``, ``detection_anisotropy``,
+        ``detection_level``) and their notes, in that order."""
         chosen, range_notes = self._at_predicted_ranges(
             chosen, keyframes, segments, _in_step(progress, "detection noise at the predicted ranges")
         )
@@ -363,70 +428,14 @@ class BatchSmoother(Stepper):
             chosen, keyframes, segments, _in_step(progress, "the detection law's level"), correlation
         )
         correlation_notes += level_notes
-        chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
-        problem, sol = chosen.problem, chosen.sol
-        stats = g.residual_statistics(problem, sol)
-        stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
-        t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
-        t1, c1 = time.perf_counter(), time.process_time()
-        gauge = covariance_gauge(kf_t, problem.kf_of_det)
-        cov_kf = np.union1d(covariance_keyframes(kf_t), [gauge])
-        pose_cov, landmark_cov = g.covariances(replace(problem, anchor=gauge), sol, cov_kf)
-        t_cov, c_cov = time.perf_counter() - t1, time.process_time() - c1
-        self.result = {
-            "kf_t": kf_t,
-            "kf_of_det": kf_of_det,
-            "segments": segments,
-            "solution": sol,
-            "seed": seed,
-            "cov_t": kf_t[cov_kf],
-            "pose_cov": pose_cov,
-            "landmark_cov": landmark_cov,
+        levels = {
+            "noise_scale": evidence,
+            "held_velocity": held_velocity,
+            "detection_correlation": correlation,
+            "detection_anisotropy": anisotropy,
+            "detection_level": detection_level,
         }
-        summary, seconds = self._summary(sol, chosen.seed.name, stats)
-        if robust is not None:
-            summary["robust"] = robust[0]
-        summary["noise_scale"] = evidence
-        summary["held_velocity"] = held_velocity
-        summary["detection_correlation"] = correlation
-        summary["detection_anisotropy"] = anisotropy
-        summary["detection_level"] = detection_level
-        summary["detection_inverse_depth"] = self.inverse_depth_record
-        if self.inverse_depth is not None:  # the levels the final solution used
-            summary["detection_inverse_depth"] |= idp.record(
-                *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
-            )
-        summary["seed_check"] = seed_check
-        summary["covariance_gauge"] = gauge_record(kf_t, gauge)
-        summary["floor"] = self._floor_record(problem, sol)
-        self.stats["substeps"] = int(kf_t.shape[0])
-        self.stats["metadata"] = {
-            "seed": chosen.seed.name,
-            "smoother": summary,
-            "noise": self.noise.as_dict(),
-            "time_offset": self.time_offset,
-            # a start's (riekf's) innovations jumping: the run splits those landmarks as it does its own
-            "start_landmark_jumps": self.start_jumps,
-        }
-        self.stats["notes"] = [robust[1]] if robust is not None else []
-        self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
-        self.stats["notes"] += seed_notes + self._floor_note() + gauge_note(summary["covariance_gauge"])
-        self.stats["notes"] += list(chosen.notes or [])
-        self.stats["notes"] += time_offset_note("batch", self.time_offset)
-        self.timings.update(
-            {
-                "seed_s": seed_s,
-                # the other starts' observer runs happen inside the solve's timer: counted once, in seed_s (the
-                # CPU figure still holds them)
-                "smoother_s": t_solve - (seed_s - seed.seconds),
-                "smoother_cpu_s": c_solve,
-                # the poses' and landmarks' marginals written to the tables (not the bias's, inside the solve)
-                "pose_landmark_covariance_s": t_cov,
-                "pose_landmark_covariance_cpu_s": c_cov,
-                **{f"smoother_{k}_s": v for k, v in seconds.items()},
-            }
-        )
-        return summary
+        return chosen, levels, range_notes + evidence_notes + anisotropy_notes + correlation_notes
 
     def _segments(self) -> _Segments:
         st = self.settings
@@ -1231,6 +1240,19 @@ def _scaled(noise, key: str, scale: float, say: bool = False):
     if key == EVIDENCE_ACROSS:
         return noise.scaled({"velocity": np.array([1.0, scale, scale])}, "the smoother's evidence" if say else None)
     return noise.scaled({key: scale}, "the smoother's evidence" if say else None)
+
+
+def _marginals(kf_t: np.ndarray, problem, sol) -> tuple:
+    """The marginal covariances the tables carry (not the bias's, inside the solve): the gauge keyframe they are
+    defined against, the keyframes they are computed at, the poses' and the landmarks' covariances, and the
+    (wall, CPU) seconds they took."""
+    from slamobs.pipeline.smoother import graph as g
+
+    t1, c1 = time.perf_counter(), time.process_time()
+    gauge = covariance_gauge(kf_t, problem.kf_of_det)
+    cov_kf = np.union1d(covariance_keyframes(kf_t), [gauge])
+    pose_cov, landmark_cov = g.covariances(replace(problem, anchor=gauge), sol, cov_kf)
+    return gauge, cov_kf, pose_cov, landmark_cov, (time.perf_counter() - t1, time.process_time() - c1)
 
 
 SPEC = ObserverSpec(
