@@ -143,3 +143,19 @@ def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_veloc
     assert report["ape"]["rotation_deg"]["rmse"] < 20.0  # the estimate's own attitude error, not a noise fit
     assert meta["observer"]["velocity_bias"]["share"] is None
     assert not any("likely lost" in n for n in meta["notes"])
+
+
+def test_every_alignment_a_report_can_state_has_its_words_in_the_summaries_and_figures():
+    """`slamobs run`'s and `slamobs report`'s summary line and the figures' titles name the report's alignment by
+    its type: the attitude alignment, chosen by the truth, among them (a KeyError there would end the run)."""
+    import json
+
+    from slamobs.cli.report_cmd import ALIGNED
+    from slamobs.pipeline.evaluation.align import DESCRIPTIONS
+    from slamobs.pipeline.evaluation.figure_jobs import ALIGN_LABELS
+    from slamobs.schemas import HERE
+
+    types = json.loads((HERE / "report.json").read_text())["$defs"]["alignment"]["properties"]["type"]["enum"]
+    assert ATTITUDE in types
+    for table in (ALIGNED, DESCRIPTIONS, ALIGN_LABELS):
+        assert set(types) <= set(table)
