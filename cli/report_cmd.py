@@ -32,6 +32,7 @@ ALIGNED = {
     "yaw": "4-DoF (yaw)-aligned",
     "origin": "origin-aligned",
     "none": "not aligned",
+    "attitude": "aligned by the attitudes (the truth positions fix no rotation)",
 }
 
 

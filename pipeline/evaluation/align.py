@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamobs.pipeline.lie import umeyama
+from slamobs.pipeline.lie import nearest_rotation, umeyama
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: Other names of the same alignments: rpg_trajectory_evaluation's ``align_type`` (its eval_cfg.yaml) calls the
@@ -31,7 +31,20 @@ DESCRIPTIONS = {
     "(rpg_trajectory_evaluation posyaw); for estimates whose roll and pitch are observed (IMU directions)",
     "origin": "origin: the first associated estimate pose is moved onto the first reference pose (evo --align_origin)",
     "none": "none: the estimate is compared in its own frame (evo without -a)",
+    "attitude": "attitude: the rotation is the chordal mean of the paired truth and estimate attitudes (R_truth "
+    "R_estᵀ), the translation puts the positions' means together; chosen in place of a least-squares fit on the "
+    "positions when the truth positions' spread cannot fix a rotation (a rig turning in place, or moving along a line)",
 }
+#: the alignment :func:`fit_alignment` falls back to when the truth positions cannot fix the rotation of the one
+#: asked for (not a kind to ask for: it is chosen, and the report says why)
+ATTITUDE = "attitude"
+#: the truth positions fix the rotation about an axis when their rms spread across it is over this many times their
+#: own noise (:func:`position_noise`): white noise alone spreads ~1x its σ along every axis. Low, because that noise
+#: estimate takes in the motion's acceleration · dt² on a sparse truth (TagSLAM test_22's 3.3 Hz reference: 9 mm,
+#: its 3.3 cm across its 0.6 m path then 3.6x); a round number, not fitted to a log
+SPREAD_OVER_NOISE = 2.0
+#: :func:`position_noise` takes the median of at most this many second differences
+NOISE_ROWS = 20_000
 
 
 @dataclass(frozen=True)
@@ -46,6 +59,9 @@ class Alignment:
     #: the 4x4 matrix evo stores as ``alignment_transformation_sim3`` (for "scale" evo stores the whole Umeyama
     #: fit although it applies only the scale)
     evo_matrix: np.ndarray | None = None
+    #: the kind asked for when another was fitted (:data:`ATTITUDE`), and why (None: the kind asked for)
+    requested: str | None = None
+    why: str | None = None
 
     def positions(self, p: np.ndarray) -> np.ndarray:
         return apply_alignment(self.rot, self.trans, self.scale, p)
@@ -101,6 +117,81 @@ def yaw_fit_first(ref_pos0, est_pos0, ref_rot0, est_rot0) -> tuple[np.ndarray, n
     return rot, np.asarray(ref_pos0, dtype=np.float64) - rot @ np.asarray(est_pos0, dtype=np.float64)
 
 
+def position_noise(p: np.ndarray) -> float:
+    """The noise (m, one coordinate's σ) of positions ``p`` (N, 3) in time order: the second differences' median
+    absolute coordinate, 1.4826 · median / √6 (white noise of σ gives second differences of σ√6; a smooth motion's
+    are its acceleration · dt², small beside it at a dense truth's rate). 0 for fewer than 5 rows. The median of
+    at most ``NOISE_ROWS`` second differences, evenly spread (an hour's pairs: ~1 ms, not ~15)."""
+    x = np.asarray(p, dtype=np.float64)
+    if x.shape[0] < 5:
+        return 0.0
+    i = np.arange(0, x.shape[0] - 2, max(1, (x.shape[0] - 2) // NOISE_ROWS))
+    d2 = x[i + 2] - 2.0 * x[i + 1] + x[i]
+    return float(1.4826 * np.median(np.abs(d2)) / np.sqrt(6.0))
+
+
+def position_spread(p: np.ndarray) -> np.ndarray:
+    """The rms spread (m) of positions ``p`` (N, 3) along their three principal axes, largest first: the centred
+    positions' singular values over √N, from their covariance's eigenvalues (one pass over the rows)."""
+    x = np.asarray(p, dtype=np.float64)
+    xc = x - x.mean(axis=0)
+    ev = np.linalg.eigvalsh(xc.T @ xc / max(x.shape[0], 1))[::-1]
+    return np.sqrt(np.clip(ev, 0.0, None))
+
+
+def rotation_undetermined(ref_pos: np.ndarray, yaw: bool = False, error_m: float | None = None) -> str | None:
+    """Why the truth positions ``ref_pos`` (N, 3, time order) cannot fix a rotation, or None when they can. A
+    least-squares fit on positions fixes the rotation about an axis only where the positions spread across it: a
+    plane or a volume fixes all three axes, a line two (not the turn about itself), a point none. An axis counts
+    when the rms spread along it is over ``SPREAD_OVER_NOISE`` times the positions' own noise
+    (:func:`position_noise`; at least 1e-9 of the coordinates' size, for a truth without noise). ``yaw``: the
+    rotation about z only, which the horizontal positions fix if they spread along one axis (a line). ``error_m``:
+    the fit's residual (one coordinate's rms), the scale instead where it is below that noise."""
+    ref = np.asarray(ref_pos, dtype=np.float64)
+    if ref.shape[0] < 3 or not np.all(np.isfinite(ref)):
+        return None  # the fit's own checks say what is wrong
+    spread = position_spread(ref[:, :2] if yaw else ref)
+    axes_needed = 1 if yaw else 2
+    noise = max(position_noise(ref), 1e-9 * (1.0 + float(np.max(np.abs(ref)))))
+    what = "their noise"
+    if error_m is not None and error_m < noise:
+        noise, what = error_m, "the fit's residual"
+    axes = int(np.count_nonzero(spread > SPREAD_OVER_NOISE * noise))
+    if axes >= axes_needed:
+        return None
+    shape = "along a line: they fix no turn about it" if axes == 1 else "about one point: they fix no rotation"
+    return (
+        f"the truth {'horizontal ' if yaw else ''}positions spread {', '.join(f'{v:.3g}' for v in spread)} m rms "
+        "along their principal axes, "
+        f"against {what} of {noise:.2g} m (over {SPREAD_OVER_NOISE:g}x it needed along {axes_needed} "
+        f"{'axes' if axes_needed > 1 else 'axis'}): they lie {shape}"
+    )
+
+
+def undetermined_fit(ref, est, rot, trans, scale, yaw: bool = False) -> str | None:
+    """Why a rotation fitted on positions (``rot``, ``trans``, ``scale``: ``ref ≈ s R est + t``; ``rot`` None where
+    the fit found the positions degenerate) is not fixed by them: :func:`rotation_undetermined` against the truth
+    positions' noise and, only where that says so (seldom: nothing more to compute for a spreading truth), again
+    against the fit's residual rms, the estimate's own error. Both must say so: a spread of unordered points
+    (second differences as large as the spread) is fixed by an estimate that matches it, and a truth at rest by none."""
+    why = rotation_undetermined(ref, yaw=yaw)
+    if why is None or rot is None:
+        return why
+    residual = float(np.sqrt(np.mean(np.sum((apply_alignment(rot, trans, scale, est) - ref) ** 2, axis=1) / 3.0)))
+    return rotation_undetermined(ref, yaw=yaw, error_m=residual)
+
+
+def attitude_fit(ref_pos, est_pos, ref_rot, est_rot) -> tuple[np.ndarray, np.ndarray]:
+    """``R = argmin Σ ‖R R_est,i − R_ref,i‖²_F``, the chordal mean of ``R_ref,i R_est,iᵀ``, and ``t = μ_ref − R
+    μ_est`` (the positions' least-squares translation for that rotation)."""
+    r_ref = np.asarray(ref_rot, dtype=np.float64)
+    r_est = np.asarray(est_rot, dtype=np.float64)
+    rot = nearest_rotation(np.einsum("nij,nkj->ik", r_ref, r_est))
+    ref = np.asarray(ref_pos, dtype=np.float64)
+    est = np.asarray(est_pos, dtype=np.float64)
+    return rot, ref.mean(axis=0) - rot @ est.mean(axis=0)
+
+
 def canonical(kind: str) -> str:
     """The alignment ``kind`` (any of ``NAMES``) as ``KINDS`` spells it."""
     name = ALIASES.get(kind, kind)
@@ -135,10 +226,14 @@ def fit_alignment(
     ref_rot: np.ndarray | None = None,
     est_rot: np.ndarray | None = None,
     n: int | None = None,
+    spread_check: bool = True,
 ) -> Alignment:
     """Fit ``kind`` (one of ``KINDS``) on associated pairs; ``n`` limits the fit to the first ``n`` pairs
     (evo ``--n_to_align``). ``origin`` needs the rotations of the first pair, and so does ``yaw`` fitted on one
-    pair (as rpg_trajectory_evaluation's posyaw with ``align_num_frames: 1``)."""
+    pair (as rpg_trajectory_evaluation's posyaw with ``align_num_frames: 1``). Where the truth positions cannot fix
+    the rotation of ``se3`` or ``sim3`` (:func:`rotation_undetermined`), the fit is :data:`ATTITUDE` with the
+    rotations of all pairs given, else a ``ValueError`` saying why (a rotation fitted to the noise is no measure);
+    ``spread_check=False`` fits as evo does whatever the spread (a refit of a fit that passed the check)."""
     kind = canonical(kind)
     ref = np.asarray(ref_pos, dtype=np.float64)
     est = np.asarray(est_pos, dtype=np.float64)
@@ -156,11 +251,27 @@ def fit_alignment(
     if kind == "yaw" and m == 1 and ref_rot is not None and est_rot is not None:
         rot, trans = yaw_fit_first(ref[0], est[0], ref_rot[0], est_rot[0])
         return Alignment(kind, rot, trans, 1.0, 1, _sim3(rot, trans, 1.0))
-    if kind == "yaw":
-        rot, trans = yaw_fit(est[:m], ref[:m])
-        return Alignment(kind, rot, trans, 1.0, m, _sim3(rot, trans, 1.0))
-    rot, trans, scale = umeyama(est[:m], ref[:m], with_scale=kind in SCALED_ALIGNMENTS)
+    checked = spread_check and kind in ("se3", "sim3", "yaw")
+    try:
+        if kind == "yaw":
+            rot, trans, scale = (*yaw_fit(est[:m], ref[:m]), 1.0)
+        else:
+            rot, trans, scale = umeyama(est[:m], ref[:m], with_scale=kind in SCALED_ALIGNMENTS)
+    except ValueError:  # degenerate positions: said as the spread says it, where it does
+        if not checked or rotation_undetermined(ref[:m], yaw=kind == "yaw") is None:
+            raise
+        rot, trans, scale = None, None, 1.0
+    why = undetermined_fit(ref[:m], est[:m], rot, trans, scale, yaw=kind == "yaw") if checked else None
+    if why and kind == "yaw":
+        raise ValueError(f"yaw alignment: {why}")
+    if why:
+        if ref_rot is None or est_rot is None or len(ref_rot) < m or len(est_rot) < m:
+            raise ValueError(f"{kind} alignment: {why}")
+        rot, trans = attitude_fit(ref[:m], est[:m], ref_rot[:m], est_rot[:m])
+        return Alignment(ATTITUDE, rot, trans, 1.0, m, _sim3(rot, trans, 1.0), kind, why)
     evo = _sim3(rot, trans, scale)
+    if kind == "yaw":
+        return Alignment(kind, rot, trans, 1.0, m, evo)
     if kind == "scale":
         return Alignment(kind, np.eye(3), np.zeros(3), scale, m, evo)
     return Alignment(kind, rot, trans, scale, m, evo)

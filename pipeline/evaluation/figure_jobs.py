@@ -38,6 +38,7 @@ ALIGN_LABELS = {
     "yaw": "4-DoF (yaw)",
     "origin": "origin",
     "none": "no",
+    "attitude": "attitude",
 }
 
 

@@ -338,7 +338,8 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     opts = dict(report.get("options") or {})
     opts["t_offset_s"] = report["method"]["association"]["t_offset_s"]
     opts["t_max_diff_s"] = report["method"]["association"]["t_max_diff_s"]
-    opts["align"] = report["method"]["alignment"]["type"]
+    al = report["method"]["alignment"]
+    opts["align"] = al.get("requested") or al["type"]  # the kind asked for, when the truth chose another
     for key in ("drift_lengths_m", "truth_rotation_xyzw"):
         if opts.get(key) is not None:
             opts[key] = tuple(opts[key])

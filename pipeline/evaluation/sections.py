@@ -19,6 +19,7 @@ from slamobs.pipeline.blocks import rms_sigmas, row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import (
     UPSIDE_DOWN_DEG,
+    ATTITUDE,
     DESCRIPTIONS,
     SCALED_ALIGNMENTS,
     Alignment,
@@ -67,7 +68,7 @@ def alignment_dict(al: Alignment) -> dict[str, Any]:
         "translation_m": [float(v) for v in al.trans],
         "scale": float(al.scale),
         "gravity_tilt_deg": gravity_tilt_deg(al.rot),
-    }
+    } | ({"requested": al.requested, "why": al.why} if al.requested else {})
 
 
 class Section:
@@ -97,12 +98,27 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
+        if ev.alignment.why:  # the positions fix no rotation: the checks that fit one on them would fit noise
+            self.result["truth_frame_turn"] = None
+            self.result["gravity_tilt_deg"] = ev.gravity_tilt_deg
+            self.notes += [attitude_note(ev.alignment)] + sparse_pairs_note(ev)
+            return
         mirror = truth_mirror_note(ev)
         turn = None if mirror else truth_frame_turn(ev)  # a mirror is no turn: the turn would mislead
         self.result["truth_frame_turn"] = turn
         self.result["gravity_tilt_deg"] = ev.gravity_tilt_deg  # the tilt note's condition (tilt_note), as a flag
         self.notes += (mirror or truth_frame_note(ev, turn)) + truth_scale_note(ev) + sparse_pairs_note(ev)
         self.notes += still_stretch_note(ev)
+
+
+def attitude_note(al: Alignment) -> str:
+    """The note of a report whose alignment asked for was not fitted because the truth positions fix no rotation
+    (``al``: :data:`~.align.ATTITUDE`, with ``requested`` and ``why``)."""
+    return (
+        f"the {al.requested} alignment was not fitted: {al.why}; a rotation fitted to them would be fitted to their "
+        "noise. The APE is after the attitude alignment instead (the rotation from the paired attitudes, the "
+        "translation from the positions' means)"
+    )
 
 
 #: A translation APE above this share of the truth's RMS extent, or a rotation APE above TRUTH_FRAME_ROTATION_DEG, is
@@ -1317,9 +1333,12 @@ def refit_errors(ev: TrajectoryEvaluation) -> Callable[[np.ndarray], np.ndarray]
     ``mask`` only (the convergence section's frame of the run's end, :func:`slam_metrics.settled_in_tail_frame`);
     None for the alignments that fit nothing to choose (origin, none)."""
     kind, ref, est = ev.alignment.kind, ev.paired.ref_pos, ev.paired.est_pos
-    if kind in ("origin", "none"):
+    if kind in ("origin", "none", ATTITUDE):  # the attitude's rotation comes from all pairs' attitudes
         return None
-    return lambda mask: metrics.row_norms(fit_alignment(kind, ref[mask], est[mask]).positions(est), ref)
+    # the report's kind, which passed the spread check on all pairs, refitted on some as evo would
+    return lambda mask: metrics.row_norms(
+        fit_alignment(kind, ref[mask], est[mask], spread_check=False).positions(est), ref
+    )
 
 
 #: Degrees of freedom of the position and of the attitude NEES.

@@ -15,7 +15,7 @@ from functools import cached_property
 import numpy as np
 
 from slamobs.pipeline.evaluation import metrics
-from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, canonical, fit_alignment
+from slamobs.pipeline.evaluation.align import ATTITUDE, DESCRIPTIONS, Alignment, canonical, fit_alignment
 from slamobs.pipeline.evaluation.metrics import RotationRows
 from slamobs.pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
 from slamobs.pipeline.evaluation.sync import (
@@ -232,8 +232,8 @@ def n_to_align(paired: Paired, opts: AlignOptions) -> int | None:
 
 def align_paired(paired: Paired, opts: AlignOptions) -> tuple[Alignment, np.ndarray]:
     """Fit the alignment on the (first) pairs; return it with the aligned estimate positions."""
-    first = (paired.ref_rot[:1], paired.est_rot[:1]) if opts.kind in ("origin", "yaw") else (None, None)
-    al = fit_alignment(opts.kind, paired.ref_pos, paired.est_pos, *first, n_to_align(paired, opts))
+    rots = (paired.ref_rot, paired.est_rot)  # origin and yaw read the first; se3 and sim3 all where positions cannot
+    al = fit_alignment(opts.kind, paired.ref_pos, paired.est_pos, *rots, n_to_align(paired, opts))
     return al, (paired.est_pos if al.kind == "none" else al.positions(paired.est_pos))
 
 
@@ -253,7 +253,9 @@ def alignment_title(opts: AlignOptions, al: Alignment) -> str:
         "origin": "\n(with origin alignment)",
         "yaw": "\n(with 4-DoF translation + yaw alignment)",
     }[kind]
-    if kind in ("se3", "sim3", "scale", "yaw"):
+    if al.kind == ATTITUDE:
+        title = "\n(with attitude alignment: the truth positions cannot fix a rotation)"
+    elif kind in ("se3", "sim3", "scale", "yaw"):
         if opts.first_s is not None:
             title += f" (aligned poses: {al.n_points}, first {opts.first_s:g} s)"
         elif opts.n is not None and opts.n >= 0:

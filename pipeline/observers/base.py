@@ -52,6 +52,11 @@ RESIGHT_GAP_S, RESIGHT_COUNT, RESIGHT_RATIO = 10.0, 20, 3.0
 #: no landmark is seen again. The wander, not the size: a slow vehicle's constant odometry bias, learned right,
 #: is a large share of its speed too (docs/benchmarks.md "Silent wrong results, round 6", and the lead's rows).
 BIAS_SHARE = 0.3
+#: A velocity input whose slow part (its running mean over ``STILL_WINDOW_S`` s) has no larger an rms than its fast
+#: part (the rest) is a body that does not translate (a rig turning in place, a robot at rest): its rms is then its
+#: noise, no scale of a motion the bias could have taken up, so the bias check says nothing (:func:`bias_share`;
+#: white noise at 4-200 Hz: slow over fast 0.02-0.4; a round rule, not fitted to a log)
+STILL_WINDOW_S = 2.0
 #: The bias check keeps the rows of every how many-th velocity sample (a long run's rows are not held twice).
 BIAS_STRIDE = 4
 #: A landmark "jumps" (its id reused for another landmark, or the landmark moved) when its detections on one side of
@@ -332,11 +337,23 @@ def resighting_check(norms: np.ndarray, back: np.ndarray) -> dict:
     }
 
 
-def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray) -> dict:
+def running_mean(t_ns: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray:
+    """The mean of the rows of ``x`` (N, d) whose stamps ``t_ns`` (N, sorted) lie within ``window_s`` / 2 of each."""
+    half = int(round(window_s * 5e8))
+    lo = np.searchsorted(t_ns, t_ns - half, side="left")
+    hi = np.searchsorted(t_ns, t_ns + half, side="right")
+    csum = np.concatenate([np.zeros((1, x.shape[1])), np.cumsum(x, axis=0)])
+    return (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+
+
+def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray, t_ns: np.ndarray | None = None) -> dict:
     """run.json's record of the velocity bias check: the velocity bias estimate's rms over the rows kept (``bias``
     (M, 3) at velocity samples ``k``), its ``wander_m_s`` (rms about its median over the rows after the first fifth
     of the velocity samples, when the estimate has settled) and that wander's share of the velocity input's rms
-    (``velocity``: (N, 3))."""
+    (``velocity``: (N, 3) at stamps ``t_ns``). With the stamps, a share over ``BIAS_SHARE`` is None when the body
+    does not translate: the rms of the velocity's running mean over ``STILL_WINDOW_S`` s (``motion_rms_m_s``) no
+    larger than that of the rest (``velocity_noise_m_s``), which is then all the velocity's rms measures (the two
+    are computed only there: the hour's velocity samples take ~0.1 s)."""
 
     def rms(rows: np.ndarray) -> float:
         return float(np.sqrt(np.mean(row_squares3(rows)))) if rows.size else 0.0
@@ -345,7 +362,13 @@ def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray) -> dict:
     settled = settled if settled.size else bias
     b, v = rms(bias), rms(velocity)
     wander = rms(settled - np.median(settled, axis=0)) if settled.size else 0.0
-    return {"rms_m_s": b, "wander_m_s": wander, "velocity_rms_m_s": v, "share": wander / v if v > 0.0 else None}
+    out = {"rms_m_s": b, "wander_m_s": wander, "velocity_rms_m_s": v}
+    moves = v > 0.0
+    if moves and wander > BIAS_SHARE * v and t_ns is not None and velocity.shape[0] > 1:  # only a verdict's runs
+        slow = running_mean(np.asarray(t_ns), np.asarray(velocity, dtype=np.float64), STILL_WINDOW_S)
+        out |= {"motion_rms_m_s": rms(slow), "velocity_noise_m_s": rms(velocity - slow)}
+        moves = moves and out["motion_rms_m_s"] > out["velocity_noise_m_s"]
+    return out | {"share": wander / v if moves else None}
 
 
 def bias_held(bias: np.ndarray, det_offsets: np.ndarray, min_landmarks: int) -> dict | None:
@@ -891,7 +914,7 @@ class Stepper:
             self.stats["metadata"]["time_offset"] = offset
         self.stats["metadata"]["resightings"] = check
         k, b = (np.concatenate(a) for a in zip(*self._biases))
-        self.stats["metadata"]["velocity_bias"] = bias_share(k, b[:, 3:], s.velocity)
+        self.stats["metadata"]["velocity_bias"] = bias_share(k, b[:, 3:], s.velocity, s.vel_t_ns)
         self.stats["metadata"]["bias_held"] = bias_held(b, s.det_offsets, self.options.min_landmarks_bias)
         if stats is not None:
             stats.update(self.stats)
