@@ -18,10 +18,10 @@ zero: then none is given, but the shifts not told from the best (:func:`_indisti
 It is applied (the detection stamps moved by it before the estimator runs) only when it is reliable: at least
 ``MIN_PAIRS`` pairs, the minimum inside the grid, more than ``MIN_SIGMAS`` standard errors and at least
 ``MIN_APPLY_S`` away from zero, not inside the search's own lag (:func:`hold_lag`: a positive shift no more than
-half the velocity samples' median interval, plus ``MIN_SIGMAS`` standard errors), the cost at zero shift at least
-``MIN_GAIN`` times the minimum, and the two halves of the log (pairs split at the median time) giving estimates
-within ``HALVES_SIGMAS`` combined standard errors of each other (a constant offset shows in both). Otherwise it is
-only reported.
+half the velocity samples' median interval, plus ``MIN_SIGMAS`` standard errors), the cost at zero shift and at that
+lag each at least ``MIN_GAIN`` times the minimum (:func:`_gain_over_lag`), and the two halves of the log (pairs
+split at the median time) giving estimates within ``HALVES_SIGMAS`` combined standard errors of each other (a
+constant offset shows in both). Otherwise it is only reported.
 """
 
 from __future__ import annotations
@@ -1015,14 +1015,14 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
     so at zero shift it reads the motion half an interval late; on a hand-held rig with IMU and twist both at 4 Hz,
     seed=9957, that lag, 0.125 s, read the lateral velocity as 10.9x, 1.31 at the search's 0.124 s), else zero."""
     shift, sigma, gain, span = _search(c)
-    why, lagged = None, False
+    why, lagged, lag = None, False, hold_lag(c.stream)
     if abs(shift) >= MAX_OFFSET_S - COARSE_S:
         why = f"the best shift is at the edge of the search (±{MAX_OFFSET_S} s)"
     elif not abs(shift) > MIN_SIGMAS * sigma:
         why = f"within {MIN_SIGMAS:g} standard errors of zero"
     elif abs(shift) < MIN_APPLY_S:
         why = f"below {MIN_APPLY_S} s"
-    elif 0.0 < shift <= (lag := hold_lag(c.stream)) + MIN_SIGMAS * sigma:
+    elif 0.0 < shift <= lag + MIN_SIGMAS * sigma:
         why = (
             f"within the search's own lag ({lag:.4f} s, half the velocity samples' median interval: it holds each "
             f"sample until the next, the estimators interpolate) and {MIN_SIGMAS:g} standard errors of zero"
@@ -1030,9 +1030,24 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
         lagged = True
     elif gain < MIN_GAIN:
         why = f"the detections fit it only {gain:.3g}x better than no shift"
+    elif (over_lag := _gain_over_lag(c, shift, lag)) < MIN_GAIN:
+        why = f"the detections fit it only {over_lag:.3g}x better than the search's own lag ({lag:.4f} s)"
+        lagged = True
     else:  # only an offset about to be applied pays for the check of the halves
         why = _halves_disagree(c, stream)
     return shift, sigma, gain, span, why, shift if why is None or lagged else 0.0
+
+
+def _gain_over_lag(c: Consistency, shift: float, lag: float) -> float:
+    """The cost at the search's own lag (:func:`hold_lag`: the shift it finds on a log with no offset) over the cost
+    at its best ``shift``: how much better the detections fit the offset than no offset as the search sees it. A
+    misread velocity scale pulls the best shift a few ms off the lag at any rate: on a 4 Hz rig past the lag's
+    standard errors (seed=9957's hand-held rig, its twist read x0.5: +0.133 s ± 0.0008 against a 0.125 s lag, 1.07x
+    better than the lag; the same misread on a 200 Hz rig: +0.009 s, 1.11x better than zero)."""
+    if lag <= 0.0:
+        return np.inf
+    at_lag, at_shift = c.costs(np.array([lag, shift]))
+    return float(at_lag) / max(float(at_shift), 1e-300)
 
 
 def _record(stream, n: int) -> dict:
