@@ -460,7 +460,7 @@ def gyro_degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: 
         return []
     t, omega, *rest = _stream_arrays(aligned)
     law_rad = detection_law(log_triplets(t, np.radians(omega), *rest, float(np.radians(gyro)), velocity))
-    if law_rad is None or (rad := _scatter_share(law_rad)[0]) * DEGREES_RATIO > share:
+    if (rad := _reread_share(law_rad, share)) is None:
         return []
     return [
         f"warning: noise: the detections scatter {share / rad:.3g}x less within 1 s with the gyro's angular "
@@ -476,6 +476,14 @@ def _scatter_share(law: DetectionLaw) -> tuple[float, float]:
     return float(law.sigma(r)) / r, r
 
 
+def _reread_share(law: DetectionLaw | None, share: float) -> float | None:
+    """The scatter share (:func:`_scatter_share`) of a law fitted again on a stream read in another unit, where it is
+    at least ``DEGREES_RATIO`` times less than ``share`` as read (the unit is then named), else None."""
+    if law is None or (again := _scatter_share(law)[0]) * DEGREES_RATIO > share:
+        return None
+    return again
+
+
 def degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float) -> list[str]:
     """A warning when the detections scatter ``DEGREES_RATIO`` times less with their azimuths read as degrees
     (:func:`pipeline.noise_estimation.azimuths_from_degrees`): a bearing in degrees read as radians on a body
@@ -485,7 +493,7 @@ def degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float
     arrays = _stream_arrays(aligned)
     reread = azimuths_from_degrees(*arrays[3:])
     law_deg = detection_law(log_triplets(*arrays[:6], reread, gyro, velocity))
-    if law_deg is None or (deg := _scatter_share(law_deg)[0]) * DEGREES_RATIO > share:
+    if (deg := _reread_share(law_deg, share)) is None:
         return []
     return [
         f"warning: noise: the detections scatter {share / deg:.3g}x less with their azimuths read as degrees "

@@ -97,10 +97,10 @@ def _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise):
     return k @ z, prior - k @ s_mat @ k.T
 
 
-def test_one_pass_frame_equals_propagation_then_kalman_update():
-    """A frame with propagation pending (``propagation_terms``) and three detections of known landmarks
-    (``update``: gain from the rows of ``Σ⁻`` it needs, propagation and downdate in one pass) against the
-    dense propagation then the dense Kalman update: covariance, state and map to 1e-12 of their magnitudes."""
+def _random_frame_state():
+    """A random filter state of six landmarks (seeded): the generator for what follows, n, d, the slots, a positive
+    definite covariance, the map, the propagation sums (ΣR̂h, Σ[P̂]×R̂h; the noise sums from a positive definite W), the
+    pose and the biases."""
     rng = np.random.default_rng(27)
     n = 6
     d = N_FIXED + 3 * n
@@ -115,6 +115,14 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     acc[2], acc[3], acc[4] = w[:3, :3], w[3:, :3], w[3:, 3:]
     r_hat, p_hat = so3_exp(rng.normal(size=3)), rng.normal(size=3)
     b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    return rng, n, d, slot_of, slot_lm, cov, lm, acc, r_hat, p_hat, b_om, b_v
+
+
+def test_one_pass_frame_equals_propagation_then_kalman_update():
+    """A frame with propagation pending (``propagation_terms``) and three detections of known landmarks
+    (``update``: gain from the rows of ``Σ⁻`` it needs, propagation and downdate in one pass) against the
+    dense propagation then the dense Kalman update: covariance, state and map to 1e-12 of their magnitudes."""
+    rng, n, d, slot_of, slot_lm, cov, lm, acc, r_hat, p_hat, b_om, b_v = _random_frame_state()
     det_idx = np.array([4, 1, 3])
     det_y = rng.normal(size=(3, 3)) * 3
     law = np.array([0.02, 0.004, 0.0, 1.0, 0.0])  # σ(r) = 0.02 + 0.004 r at the range the state predicts
@@ -165,20 +173,7 @@ def test_a_lone_detection_far_off_is_updated_with_the_linearisations_dropped_ter
     invariant ``H`` drops, since ``|z|² tr Σ⁻_RR`` is over the gate's ``σ²``; the frame still equals the dense
     propagation then the dense Kalman update with that noise. With two or more detections in a frame the noise is
     the law's alone (the test above)."""
-    rng = np.random.default_rng(27)
-    n = 6
-    d = N_FIXED + 3 * n
-    slot_of = rng.permutation(n)
-    slot_lm = np.argsort(slot_of)
-    a = rng.normal(size=(d, d))
-    cov = (a @ a.T + d * np.eye(d)) * 1e-3
-    lm = rng.normal(size=(n, 3)) * 5
-    acc = rng.normal(size=(5, 3, 3)) * 0.1
-    w = rng.normal(size=(6, 6)) * 0.1
-    w = w @ w.T
-    acc[2], acc[3], acc[4] = w[:3, :3], w[3:, :3], w[3:, 3:]
-    r_hat, p_hat = so3_exp(rng.normal(size=3)), rng.normal(size=3)
-    b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    rng, n, d, slot_of, slot_lm, cov, lm, acc, r_hat, p_hat, b_om, b_v = _random_frame_state()
     i = 4
     det_y = rng.normal(size=(1, 3)) * 3
     law = np.array([0.02, 0.004, 0.0, 1.0, 0.0])
