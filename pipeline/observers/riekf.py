@@ -783,8 +783,8 @@ def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
 
 
 @subroutine(types.none, fastmath=CONTRACT)
-def _linearisation(z, srr, sigma2, gate, lin, j):
-    """``lin[j] = [z]× Σ⁻_RR [z]×ᵀ`` when ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance
+def _linearisation(z, srr, sigma2, gate, lin):
+    """``lin = [z]× Σ⁻_RR [z]×ᵀ`` when ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance
     ``sigma2`` (as a detection error it alone would fail the gate), else left zero: the covariance of the term the
     invariant model's ``H = [0, I, −I]`` drops, the correction's turn of the innovation itself (``−[z]× ξ_R``),
     second order for a small innovation and metres after a blind stretch (docs/benchmarks.md, "riekf's
@@ -804,7 +804,7 @@ def _linearisation(z, srr, sigma2, gate, lin, j):
             for c in range(3):
                 for e in range(3):
                     v += k[a][c] * srr[c, e] * k[b][e]
-            lin[j, a, b] = v
+            lin[a, b] = v
 
 
 @subroutine(types.float64, fastmath=CONTRACT)
@@ -1198,7 +1198,7 @@ def update(
         ns[_OPEN_GATED] = 0
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
-    lin = np.zeros((1, 3, 3))  # the frame's only update's linearisation term (_linearisation)
+    lin = np.zeros((3, 3))  # the frame's only update's linearisation term (_linearisation)
     if m == 1 and ns[_ARMED] == 0:  # two or more landmarks constrain the pose's turn, and a return the blind check
         srr = np.empty((3, 3))  # judges is updated plainly; Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
@@ -1207,7 +1207,7 @@ def update(
                 for k in range(6):
                     v += lt[k, a] * rt[k, b]
                 srr[a, b] = v
-        _linearisation(z, srr, sig2[sel[0]], gate, lin, 0)
+        _linearisation(z, srr, sig2[sel[0]], gate, lin)
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
@@ -1228,7 +1228,7 @@ def update(
                 for k in range(k3):
                     smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 for b in range(3):
-                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[0, c, b]
+                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
