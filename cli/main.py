@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import OutPath, log_run_options
+from slamobs.cli.options import OutPath, log_run_config, log_run_options
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -115,8 +115,6 @@ def run(
 
     A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
     """
-    from dataclasses import replace
-
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
 
@@ -137,17 +135,13 @@ def run(
             from slamobs.pipeline.readers.container import recording_of
 
             log = recording_of(logs)
-            from slamobs.pipeline.config import load_config, with_observer, with_truth
+            from slamobs.pipeline.config import load_config, with_observer
             from slamobs.pipeline.run import run_log
 
             imported()
-            config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
-            config = config.with_plots(plots)
+            config = with_observer(load_config(config_path), observer)
+            config = log_run_config(config, truth, start, end, plots, msg_dir, export)
             helper = compile_ahead.start(config.observer, spare, helper)
-            if msg_dir:
-                config = replace(config, msg_dir=str(msg_dir))
-            if export is not None:
-                config = config.with_section("output", export=export)
             with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
                 summary = run_log(log, out_dir, config, force=force, plot_workers=workers, progress=progress)
         finally:
@@ -230,8 +224,6 @@ def compare(
 
     A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
     """
-    from dataclasses import replace
-
     from slamobs.cli.errors import working_on
     from slamobs.cli.listing import wrote_line
     from slamobs.pipeline.lifetime import collected_after_imports
@@ -242,20 +234,16 @@ def compare(
         log = recording_of(logs)
         working_on(log, "a comparison on this log")
         from slamobs.pipeline.compare import compare_log
-        from slamobs.pipeline.config import load_config, with_observer, with_truth
+        from slamobs.pipeline.config import load_config, with_observer
         from slamobs.pipeline.errors import InputError
 
         imported()
         observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
         if not observers:
             raise InputError("--observers", "needs at least one observer name")
-        config = with_truth(load_config(config_path), truth).with_window(start, end).with_plots(plots)
+        config = log_run_config(load_config(config_path), truth, start, end, plots, msg_dir, export)
         for name in observers:
             with_observer(config, name, "--observers")
-        if msg_dir:
-            config = replace(config, msg_dir=str(msg_dir))
-        if export is not None:
-            config = config.with_section("output", export=export)
         # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
             on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)

@@ -223,3 +223,18 @@ def log_run_options(command):
     ):
         command = option(command)
     return command
+
+
+def log_run_config(config, truth, start, end, plots, msg_dir, export):
+    """``config`` with what :func:`log_run_options` gave applied, as ``run`` and ``compare`` read it: ``--truth``,
+    the window, ``--plots/--no-plots``, ``--msg-dir`` and ``--export`` (None: the config's own)."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.config import with_truth
+
+    config = with_truth(config, truth).with_window(start, end).with_plots(plots)
+    if msg_dir:
+        config = replace(config, msg_dir=str(msg_dir))
+    if export is not None:
+        config = config.with_section("output", export=export)
+    return config

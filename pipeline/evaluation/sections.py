@@ -188,22 +188,22 @@ def sparse_pairs_note(ev: TrajectoryEvaluation) -> list[str]:
     ]
 
 
-#: A pair whose truth moves less than STILL_MOVE_M over STILL_WINDOW_S either side of it stands still (a rig at rest:
+#: A pair whose truth moves less than STILL_MOVE_M over STILL_SPAN_S either side of it stands still (a rig at rest:
 #: 0 on a generated log; a motion-capture truth's jitter is millimetres). The APE weighs each place by the time spent
 #: there: still pairs of STILL_SHARE or more of them, with an APE STILL_GAIN times the one fitted on the moving pairs
 #: alone or more, get a note (seed=3657: 30 s still of 120, fast-adaptation 0.476 m against 0.289 m over the moving
 #: poses: the place it stood 0.69 m off, the drift of the path after it; riekf and batch 0.08 and 0.03, no note).
-STILL_WINDOW_S = 0.5
+STILL_SPAN_S = 0.5
 STILL_MOVE_M = 0.01
 STILL_SHARE = 0.1
 STILL_GAIN = 1.25
 
 
 def still_pairs(t_ns: np.ndarray, pos: np.ndarray) -> np.ndarray:
-    """Which of the time-ordered poses ``pos`` at ``t_ns`` stand still: the position ``STILL_WINDOW_S`` before and
+    """Which of the time-ordered poses ``pos`` at ``t_ns`` stand still: the position ``STILL_SPAN_S`` before and
     after each (the nearest pose) within ``STILL_MOVE_M`` of its own."""
     t = np.asarray(t_ns, dtype=np.int64)
-    w = int(STILL_WINDOW_S * NS_PER_S)
+    w = int(STILL_SPAN_S * NS_PER_S)
     before = np.clip(np.searchsorted(t, t - w), 0, t.size - 1)
     after = np.clip(np.searchsorted(t, t + w), 0, t.size - 1)
     near = lambda j: metrics.row_norms(pos[j], pos) < STILL_MOVE_M  # noqa: E731

@@ -52,11 +52,13 @@ RESIGHT_GAP_S, RESIGHT_COUNT, RESIGHT_RATIO = 10.0, 20, 3.0
 #: no landmark is seen again. The wander, not the size: a slow vehicle's constant odometry bias, learned right,
 #: is a large share of its speed too (docs/benchmarks.md "Silent wrong results, round 6", and the lead's rows).
 BIAS_SHARE = 0.3
-#: A velocity input whose slow part (its running mean over ``STILL_WINDOW_S`` s) has no larger an rms than its fast
-#: part (the rest) is a body that does not translate (a rig turning in place, a robot at rest): its rms is then its
-#: noise, no scale of a motion the bias could have taken up, so the bias check says nothing (:func:`bias_share`;
-#: white noise at 4-200 Hz: slow over fast 0.02-0.4; a round rule, not fitted to a log)
-STILL_WINDOW_S = 2.0
+#: A velocity input whose slow part (its running mean over ``MOTION_MEAN_WINDOW_S`` s: the motion) has no larger an
+#: rms than its fast part (the rest: the noise) is a body that does not translate (a rig turning in place, a robot at
+#: rest): its rms is then its noise, no scale of a motion the bias could have taken up, so the bias check says nothing
+#: (:func:`bias_share`; white noise at 4-200 Hz: slow over fast 0.02-0.4; a round rule, not fitted to a log). Not the
+#: report's ``evaluation.sections.STILL_SPAN_S``: that judges a truth pose at rest by its displacement, this splits a
+#: velocity input's spectrum.
+MOTION_MEAN_WINDOW_S = 2.0
 #: The bias check keeps the rows of every how many-th velocity sample (a long run's rows are not held twice).
 BIAS_STRIDE = 4
 #: A landmark "jumps" (its id reused for another landmark, or the landmark moved) when its detections on one side of
@@ -351,7 +353,7 @@ def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray, t_ns: np.n
     (M, 3) at velocity samples ``k``), its ``wander_m_s`` (rms about its median over the rows after the first fifth
     of the velocity samples, when the estimate has settled) and that wander's share of the velocity input's rms
     (``velocity``: (N, 3) at stamps ``t_ns``). With the stamps, a share over ``BIAS_SHARE`` is None when the body
-    does not translate: the rms of the velocity's running mean over ``STILL_WINDOW_S`` s (``motion_rms_m_s``) no
+    does not translate: the rms of the velocity's running mean over ``MOTION_MEAN_WINDOW_S`` s (``motion_rms_m_s``) no
     larger than that of the rest (``velocity_noise_m_s``), which is then all the velocity's rms measures (the two
     are computed only there: the hour's velocity samples take ~0.1 s)."""
 
@@ -365,7 +367,7 @@ def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray, t_ns: np.n
     out = {"rms_m_s": b, "wander_m_s": wander, "velocity_rms_m_s": v}
     moves = v > 0.0
     if moves and wander > BIAS_SHARE * v and t_ns is not None and velocity.shape[0] > 1:  # only a verdict's runs
-        slow = running_mean(np.asarray(t_ns), np.asarray(velocity, dtype=np.float64), STILL_WINDOW_S)
+        slow = running_mean(np.asarray(t_ns), np.asarray(velocity, dtype=np.float64), MOTION_MEAN_WINDOW_S)
         out |= {"motion_rms_m_s": rms(slow), "velocity_noise_m_s": rms(velocity - slow)}
         moves = moves and out["motion_rms_m_s"] > out["velocity_noise_m_s"]
     return out | {"share": wander / v if moves else None}

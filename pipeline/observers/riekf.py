@@ -762,6 +762,17 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
 
 
 @subroutine(types.float64, fastmath=CONTRACT)
+def _pending_sum(v, lt, rt, i, j):
+    """``v`` plus the pending propagation's change to entry ``(i, j)`` off the position rows and columns,
+    ``Σ_(k<6) lt[k, i] rt[k, j]`` (:func:`propagation_terms`), each term added in turn as one fused multiply-add:
+    with ``v = Σ_ij`` the entry of ``Σ⁻``. The one scalar sum of the gate, the linearisation's ``Σ⁻_RR`` and
+    :func:`_hp_rows`' unpadded columns (its padded ones are the same terms in the same order, eight at a time)."""
+    for k in range(6):
+        v += lt[k, i] * rt[k, j]
+    return v
+
+
+@subroutine(types.float64, fastmath=CONTRACT)
 def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
     """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ`` of ``Σ⁻`` (the
     pending propagation added, each term read once; ``u = ues[j]``: the range's extra standard deviation along the
@@ -774,9 +785,7 @@ def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
             v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
             v -= cov[3 + a, sl + b] + dp[a, sl + b]  # Σ⁻_Ps
             v -= cov[sl + a, 3 + b] + dp[b, sl + a]  # Σ⁻_sP
-            v += cov[sl + a, sl + b]  # Σ⁻_ss
-            for k in range(6):
-                v += lt[k, sl + a] * rt[k, sl + b]
+            v = _pending_sum(v + cov[sl + a, sl + b], lt, rt, sl + a, sl + b)  # Σ⁻_ss
             s[a, b] = v + ues[j, a] * ues[j, b]
         s[a, a] += sigma2
     return _mahalanobis3(s, z)
@@ -1055,19 +1064,8 @@ def _hp_rows(hp, h, cov, dp, lt, rt, s, d):
             v = fma8(splat8(lt[5, sc]), r5, fma8(splat8(lt[4, sc]), r4, v))
             store8(hp, h + c, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
     for c in range(3):
-        sc = s + c
-        l0, l1, l2, l3, l4, l5 = lt[0, sc], lt[1, sc], lt[2, sc], lt[3, sc], lt[4, sc], lt[5, sc]
         for r in range(end, d):
-            v = (
-                cov[sc, r]
-                + l0 * rt[0, r]
-                + l1 * rt[1, r]
-                + l2 * rt[2, r]
-                + l3 * rt[3, r]
-                + l4 * rt[4, r]
-                + l5 * rt[5, r]
-            )
-            hp[h + c, r] = (cov[3 + c, r] + dp[c, r]) - v
+            hp[h + c, r] = (cov[3 + c, r] + dp[c, r]) - _pending_sum(cov[s + c, r], lt, rt, s + c, r)
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -1203,10 +1201,7 @@ def update(
         srr = np.empty((3, 3))  # judges is updated plainly; Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
             for b in range(3):
-                v = cov[a, b]
-                for k in range(6):
-                    v += lt[k, a] * rt[k, b]
-                srr[a, b] = v
+                srr[a, b] = _pending_sum(cov[a, b], lt, rt, a, b)
         _linearisation(z, srr, sig2[sel[0]], gate, lin)
     if m > 0:
         k3 = 3 * m
