@@ -22,6 +22,12 @@ Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
   mis-associations (bearing error above ``MISASSOCIATED_RAD``) left out, beside one landmark's own at 0.5-1.5 s;
   then the detections' stamp offset that best explains the bearing error by Vicon's yaw rate (``e = −ω·δ``), the
   share of its variance that explains, and the same-frame bearing correlation left after it.
+* ``--law``: a fifth table, the detection law ``noise: auto`` gives riekf beside the truth's, per range bin
+  (:data:`LAW_BINS_M`): each detection's error against the truth as a vector in the body frame, in the law's
+  convention (``|d|²/3`` per axis, as the triplets' three components), its RMS within 4 σ of the bin's robust scale
+  and that over the robust scale (a heavy tail within the range is over 1), against the law's σ at the bin's median
+  range (docs/noise.md, "Wild detections"). With it, every table's levels are estimated as a run estimates them
+  (the velocity density from the samples as recorded, not as aligned).
 """
 
 from __future__ import annotations
@@ -44,6 +50,8 @@ SPEED_SEGMENTS_S = (60.0, 30.0, 15.0)
 #: ``--shared``: a bearing error above this (rad) is a mis-association, left out; two detections less than
 #: ``SAME_FRAME_S`` apart are one frame's.
 MISASSOCIATED_RAD, SAME_FRAME_S = 0.1, 0.05
+#: ``--law``: the range bins (m) the truth's detection error and the law are compared in.
+LAW_BINS_M = (0.0, 1.5, 2.5, 3.5, 5.0)
 
 
 def _robust(x: np.ndarray) -> float:
@@ -231,26 +239,54 @@ def shared_cells(streams, aligned) -> list[str]:
     ]
 
 
+def law_cells(streams, aligned, law) -> list[str]:
+    """The ``--law`` table's cells for one robot (module docstring): per bin, truth / law σ (m) and the truth's
+    RMS over its robust scale."""
+    t = np.repeat((aligned.det_t_ns - aligned.t0_ns) * 1e-9, np.diff(aligned.det_offsets))
+    yaw, pos = _truth_yaw(streams, t, aligned.t0_ns)
+    lm = np.array([streams.landmark_truth[int(aligned.landmark_ids[i])][:2] for i in aligned.det_idx]) - pos
+    c, s = np.cos(yaw), np.sin(yaw)
+    true = np.stack([c * lm[:, 0] + s * lm[:, 1], -s * lm[:, 0] + c * lm[:, 1]], axis=1)
+    d2 = np.sum((aligned.det_y[:, :2] - true) ** 2, axis=1)  # planar: the third component's error is 0
+    r = np.linalg.norm(aligned.det_y, axis=1)
+    cells = []
+    for lo, hi in zip(LAW_BINS_M[:-1], LAW_BINS_M[1:]):
+        m = (r >= lo) & (r < hi)
+        if np.count_nonzero(m) < 30:
+            cells.append("-")
+            continue
+        robust = np.median(d2[m]) / (2.0 * np.log(2.0)) * 2.0 / 3.0  # a 2-D Gaussian's median |d|² is 2 ln2 s²
+        per_axis = d2[m] / 3.0
+        trimmed = float(np.sqrt(np.mean(per_axis[per_axis <= 16.0 * robust])))
+        cells.append(f"{trimmed:.3f} / {float(law.sigma(np.median(r[m]))):.3f} ({trimmed / np.sqrt(robust):.2f})")
+    return cells
+
+
 def main() -> None:
     from slamobs.pipeline.alignment import align
     from slamobs.pipeline.api import read_log
-    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
+    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise, stream_density
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", default="mrclam6,mrclam7", help="comma-separated MR.CLAM robots or datasets")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
     ap.add_argument("--speed", action="store_true", help="also the commanded speed's error taken apart (third table)")
     ap.add_argument("--shared", action="store_true", help="also the detections' error shared across landmarks (fourth)")
+    ap.add_argument("--law", action="store_true", help="also the detection law beside the truth's per range (fifth)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
     heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
     print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
-    rows, speed, shared = [], [], []
+    rows, speed, shared, laws = [], [], [], []
     for log in logs:
         streams = read_log(log.path)
         aligned = align(streams)
-        noise = resolve_noise(estimated=estimate_log_noise(aligned))
+        lv = streams.linear_velocity
+        estimated = estimate_log_noise(
+            aligned, stream_density(lv.t_ns, lv.xyz) if args.law and lv is not None else "aligned"
+        )
+        noise = resolve_noise(estimated=estimated)
         vicon = motion_cells(streams, aligned)
         pairs = [f"{vicon[2 * k]} / {vicon[2 * k + 1]}" for k in range(len(WINDOWS_S))]
         print(f"| {log.name} | {np.max(noise.gyro):.3f} / {np.max(noise.velocity):.3f} | " + " | ".join(pairs) + " |")
@@ -258,6 +294,8 @@ def main() -> None:
         speed += speed_rows(log.name, streams, aligned) if args.speed else []
         if args.shared:
             shared.append(f"| {log.name} | " + " | ".join(shared_cells(streams, aligned)) + " |")
+        if args.law and estimated.detection is not None:
+            laws.append(f"| {log.name} | " + " | ".join(law_cells(streams, aligned, estimated.detection)) + " |")
     lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
     print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
     print("\n".join(rows))
@@ -273,6 +311,10 @@ def main() -> None:
             "\n|" + " --- |" * 6
         )
         print("\n".join(shared))
+    if laws:
+        bins = " | ".join(f"{lo:g}-{hi:g} m" for lo, hi in zip(LAW_BINS_M[:-1], LAW_BINS_M[1:]))
+        print(f"\n| robot (truth / law σ m, truth RMS over its robust scale) | {bins} |\n|" + " --- |" * 5)
+        print("\n".join(laws))
 
 
 if __name__ == "__main__":

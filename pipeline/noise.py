@@ -407,7 +407,8 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
     triplets = log_triplets(*_stream_arrays(aligned), g, v)
-    law = detection_law(triplets)
+    robust = gyro is not None and velocity is not None  # a held stream's commands: docs/noise.md, "Wild detections"
+    law = detection_law(triplets, robust=robust)
     ratio = None
     if law is None:
         notes.append("noise: too few landmarks seen three times within 1 s to estimate the detection noise")
@@ -420,14 +421,14 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
         )
         ratio = None
     else:  # a steep range error: the law again, its outliers judged along and across the line of sight
-        law = detection_law(triplets, ratio=ratio.value) or law
+        law = detection_law(triplets, ratio=ratio.value, robust=robust) or law
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    gyro_said = gyro_degrees_note(aligned, law, g, v)  # the gyro's misread, not the detections', scatters them
+    gyro_said = gyro_degrees_note(aligned, law, g, v, robust)  # the gyro's misread, not the detections', scatters them
     notes += [w + stream_topics(topics, "gyro") for w in gyro_said] or [
         w + stream_topics(topics, "detections", "camera")
-        for w in scattered_note(law) or degrees_note(aligned, law, g, v)
+        for w in scattered_note(law) or degrees_note(aligned, law, g, v, robust)
     ]
     unresolved = None if gyro is None else unresolved_motion_density(vel_t, aligned.omega, gyro.value)
     return LogNoise(gyro, velocity, law, tuple(notes), held, ratio, unresolved)
@@ -450,16 +451,18 @@ def scattered_note(law: DetectionLaw | None) -> list[str]:
     ]
 
 
-def gyro_degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float) -> list[str]:
+def gyro_degrees_note(
+    aligned, law: DetectionLaw | None, gyro: float, velocity: float, robust: bool = True
+) -> list[str]:
     """A warning when the detections scatter (``SCATTERED_SHARE``) as the gyro reads and ``DEGREES_RATIO`` times
     less with its angular velocity divided by 57.3: a gyro in deg/s turns the dead reckoning between a triplet's
     detections 57.3x too far, and :func:`scattered_note` would blame the detections (a generated hand-held rig
     with its gyro in deg/s: 0.60 of the range as read; docs/benchmarks.md, "Logs nobody has run yet, round 6").
-    Fitted again only where the detections scatter."""
+    Fitted again only where the detections scatter, from the start ``law`` was (``robust``, :func:`.detection_law`)."""
     if law is None or (share := _scatter_share(law)[0]) <= SCATTERED_SHARE:
         return []
     t, omega, *rest = _stream_arrays(aligned)
-    law_rad = detection_law(log_triplets(t, np.radians(omega), *rest, float(np.radians(gyro)), velocity))
+    law_rad = detection_law(log_triplets(t, np.radians(omega), *rest, float(np.radians(gyro)), velocity), robust=robust)
     if (rad := _reread_share(law_rad, share)) is None:
         return []
     return [
@@ -484,15 +487,16 @@ def _reread_share(law: DetectionLaw | None, share: float) -> float | None:
     return again
 
 
-def degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float) -> list[str]:
+def degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float, robust: bool = True) -> list[str]:
     """A warning when the detections scatter ``DEGREES_RATIO`` times less with their azimuths read as degrees
     (:func:`pipeline.noise_estimation.azimuths_from_degrees`): a bearing in degrees read as radians on a body
-    that turns slowly scatters under ``SCATTERED_SHARE`` (its error is 57.3x, its wraps few)."""
+    that turns slowly scatters under ``SCATTERED_SHARE`` (its error is 57.3x, its wraps few); fitted from the start
+    ``law`` was (``robust``, :func:`.detection_law`)."""
     if law is None or (share := _scatter_share(law)[0] / law.held_scale) <= DEGREES_FROM_SHARE:  # as the triplets saw
         return []
     arrays = _stream_arrays(aligned)
     reread = azimuths_from_degrees(*arrays[3:])
-    law_deg = detection_law(log_triplets(*arrays[:6], reread, gyro, velocity))
+    law_deg = detection_law(log_triplets(*arrays[:6], reread, gyro, velocity), robust=robust)
     if (deg := _reread_share(law_deg, share)) is None:
         return []
     return [

@@ -44,6 +44,9 @@ OUTLIER_SIGMAS = 4.0
 #: log's heavy tail (MR.CLAM's slowly varying range errors and mis-associations, 10-100x) stays with the 4 σ rounds
 #: (at 10x or 30x the laws of MR.CLAM 6-r2, 7-r3, 7-r4 moved and their riekf/batch APE by -24 to +41 %).
 GROSS_FACTOR, GROSS_BINS = 100.0, 10
+#: The median of a χ² variable of three degrees of freedom: a residual's ``|e|²`` over this is its variance per
+#: component (the robust start's scale, :func:`_robust_start`).
+CHI2_3_MEDIAN = 2.366
 #: Bootstrap resamples of the detection-noise fit.
 BOOTSTRAP = 20
 #: At most this many triplets are fitted (a uniform subsample of longer logs).
@@ -427,16 +430,34 @@ def _not_gross(tri: Triplets) -> np.ndarray:
     return keep
 
 
+def _robust_start(tri: Triplets, ratio: float) -> np.ndarray:
+    """The triplets that are not gross (:func:`_not_gross`) and within ``OUTLIER_SIGMAS`` of their range
+    quantile's robust scale: ``GROSS_BINS`` quantiles of the median of a triplet's three ranges (a wild detection
+    moved 1-3 m moves its range too: binned by the middle one's, the triplets it is the middle of gathered in the
+    extreme quantiles, a majority there on a ground robot seeing 3-5 m, and their median was theirs); each
+    quantile's variance per unit of a triplet's weights ``c2`` is the median of its ``|e|²/Σc2`` over
+    ``CHI2_3_MEDIAN``, judged by :func:`_inliers`. A wild detection sits in up to three triplets: a Gaussian fit
+    on all of them before any is dropped came out 1.4-2.3x too wide at 5 % wild, and three 4 σ rounds from there
+    did not bring it back (docs/noise.md, "Wild detections")."""
+    q = np.sum(tri.e * tri.e, axis=1) / np.sum(tri.c2, axis=1)
+    scale = np.empty_like(q)
+    r = np.median(tri.r, axis=1)  # one wild detection's range does not move its triplets to another quantile
+    for part in np.array_split(np.argsort(r, kind="stable"), min(GROSS_BINS, max(1, q.size // 10))):
+        scale[part] = np.median(q[part]) / CHI2_3_MEDIAN
+    return _not_gross(tri) & _inliers(tri, tri.e * tri.e, scale * np.sum(tri.c2, axis=1), ratio)
+
+
 def _fit_law(
-    tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3, ratio: float = 1.0
+    tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3, ratio: float = 1.0, robust: bool = True
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Variance-component estimation of one law: Fisher scoring on the triplets that are not gross outliers
-    (:func:`_not_gross`), then outliers beyond ``OUTLIER_SIGMAS`` dropped (:func:`_inliers`, at the range/bearing
-    ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean log-likelihood per component and the inlier
-    mask."""
+    """Variance-component estimation of one law: Fisher scoring on the triplets within 4 σ of their range
+    quantile's robust scale (:func:`_robust_start`; with ``robust`` False those that are not gross outliers,
+    :func:`_not_gross`), then outliers beyond ``OUTLIER_SIGMAS`` of the fitted law dropped (:func:`_inliers`, at
+    the range/bearing ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean log-likelihood per
+    component and the inlier mask."""
     theta = np.maximum(np.asarray(theta0, float), 0.0)
     e2 = tri.e * tri.e  # (K, 3)
-    inl = _not_gross(tri)
+    inl = _robust_start(tri, ratio) if robust else _not_gross(tri)
     for _ in range(rounds):
         for _ in range(30):
             v, jac = _variance(theta, tri, power)
@@ -475,14 +496,19 @@ def _fitted(tri: Triplets, seed: int) -> tuple[Triplets, np.random.Generator] | 
     return tri, gen
 
 
-def detection_law(tri: Triplets, seed: int = 0, ratio: float = 1.0) -> DetectionLaw | None:
+def detection_law(tri: Triplets, seed: int = 0, ratio: float = 1.0, robust: bool = True) -> DetectionLaw | None:
     """The range law of the detection noise that fits the triplets best, or None with too few of them; ``ratio``:
-    the range/bearing ratio its outliers are judged at (:func:`_inliers`; 1: every component alike)."""
+    the range/bearing ratio its outliers are judged at (:func:`_inliers`; 1: every component alike); ``robust``:
+    the first fit on the triplets within 4 σ of their range quantile's robust scale (:func:`_robust_start`), else
+    on all but the gross outliers (:func:`_not_gross`)."""
     if (fitted := _fitted(tri, seed)) is None:
         return None
     tri, gen = fitted
     start = _robust_sigma(tri.e.ravel()[:, None])[0] / np.sqrt(np.mean(tri.c2.sum(axis=1)))
-    fits = {name: _fit_law(tri, power, np.array([start, 0.0]), ratio=ratio) for name, (power, _) in LAWS.items()}
+    fits = {
+        name: _fit_law(tri, power, np.array([start, 0.0]), ratio=ratio, robust=robust)
+        for name, (power, _) in LAWS.items()
+    }
     best = max(fits, key=lambda name: fits[name][1])
     other = min(fits, key=lambda name: fits[name][1])
     theta, ll, inl = fits[best]
@@ -491,7 +517,7 @@ def detection_law(tri: Triplets, seed: int = 0, ratio: float = 1.0) -> Detection
     n = tri.e.shape[0]
     for _ in range(BOOTSTRAP):
         sample = _subset(tri, gen.integers(0, n, n))
-        boot.append(_fit_law(sample, power, theta, rounds=1, ratio=ratio)[0])
+        boot.append(_fit_law(sample, power, theta, rounds=1, ratio=ratio, robust=robust)[0])
     se = np.std(np.array(boot), axis=0, ddof=1)
     used = int(np.count_nonzero(inl))
     method = (
