@@ -279,6 +279,42 @@ def test_batch_takes_the_jumps_its_riekf_start_shows():
     assert sorted(j["id"] for j in jumps) == sorted(stream.landmark_ids[[a, b]].tolist()), jumps
 
 
+def test_batch_judges_a_jump_on_its_own_whitened_residuals(tmp_path):
+    """batch's jump check reads each detection's χ² under the noise model its solve weighs it with
+    (``ObserverResult.innovation_d2``), not ‖e‖ in metres: on the shipped camera log the tag 27's first detections,
+    at 10-11 m on 320x240 JPEGs (σ(r) there several times the run's median), were 25x the run's median distance in
+    metres and named a jump (split as landmark 61, "an id reused or a landmark moved"; no id is reused in that
+    simulated log); whitened they are no jump. Two ids swapped halfway on a generated log still are, in batch's own
+    whitened residuals."""
+    import json
+
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.estimators import get_estimator
+    from slamobs.pipeline.observers.base import InnovationRecord, landmark_jumps
+    from slamobs.pipeline.run import run_log
+
+    sample = Path(__file__).parents[1] / "sample_logs" / "figure8_camera.mcap"
+    config = parse_config({"observer": "batch", "tags": {"size": 0.8}, "evaluation": {"plots": False}})
+    summary = run_log(sample, tmp_path / "run", config)
+    run = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert run["observer"]["landmark_jumps"] == [], run["observer"]["landmark_jumps"]
+    assert not [n for n in summary.notes if "batch: landmark" in n]
+
+    sim = simulate("figure8", seed=3, duration=DURATION, noise=NoiseModel(detection_base=SIGMA, detection_per_m=0.0))
+    stream = align(expected_streams(sim))
+    late = second_half(stream)
+    a, b = np.argsort(np.bincount(stream.det_idx[late]))[-2:]
+    idx = stream.det_idx.copy()
+    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    batch = get_estimator("batch")
+    for s, expected in ((stream, []), (replace(stream, det_idx=idx), sorted(stream.landmark_ids[[a, b]].tolist()))):
+        res = batch.run(s, {}, ObserverOptions(noise=noise()))
+        assert res.innovation_d2 is not None and res.innovation_d2.shape == res.det_ids.shape
+        record = InnovationRecord()
+        record.add(res)
+        assert sorted(j["id"] for j in landmark_jumps(*record.arrays())) == expected
+
+
 def test_riekf_that_cannot_recover_says_so_in_an_error_line(log):
     """Halfway, the detections are associated with random landmarks: no noise level explains them, so the
     filter gives up with status lost and an error line, not a quiet trajectory."""
