@@ -178,6 +178,10 @@ class ObserverResult:
     #: per landmark (``landmark_ids`` order) the 3×3 covariance of its position in the map frame.
     pose_cov: np.ndarray | None = None
     landmark_cov: np.ndarray | None = None
+    #: Per detection its squared distance from the map under the estimator's own noise model (batch: its residual
+    #: whitened by the covariance its solve weighs the detection with, the χ² its gate reads), or None: the
+    #: estimators without one, whose jump check judges ‖e‖ in metres (:class:`InnovationRecord`).
+    innovation_d2: np.ndarray | None = None
 
 
 def max_per_frame(det_offsets: np.ndarray) -> int:
@@ -442,15 +446,21 @@ def lost_note(name: str, check: dict | None, bias: dict | None = None) -> list[s
 
 
 class InnovationRecord:
-    """Every detection's time, landmark id and innovation ‖e‖ as the stretches of a run come (for
-    :func:`landmark_jumps` once the run is done)."""
+    """Every detection's time, landmark id and distance from the map as the stretches of a run come (for
+    :func:`landmark_jumps` once the run is done): ``√d²`` under the estimator's own noise model where it has one
+    (``ObserverResult.innovation_d2``: batch; in metres its residuals named the shipped camera log's landmark 27,
+    first seen 10-11 m away, a jump), else the innovation ‖e‖ in metres (riekf)."""
 
     def __init__(self) -> None:
         self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
 
     def add(self, result: ObserverResult) -> None:
-        """The detections of one stretch (``result``'s ``det_t_ns``, ``det_ids``, ``innovation``)."""
-        norms = np.linalg.norm(result.innovation, axis=1)
+        """The detections of one stretch (``result``'s ``det_t_ns``, ``det_ids``, ``innovation_d2`` or
+        ``innovation``)."""
+        if result.innovation_d2 is not None:
+            norms = np.sqrt(np.asarray(result.innovation_d2, float))
+        else:
+            norms = np.linalg.norm(result.innovation, axis=1)
         self._parts.append((np.asarray(result.det_t_ns), np.asarray(result.det_ids), norms))
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -795,6 +805,11 @@ class Stepper:
         yet estimated), for estimators that keep one; None for the observers."""
         return None
 
+    def detection_distances(self, det_first: int, det_stop: int) -> np.ndarray | None:
+        """Detections ``det_first .. det_stop − 1``'s ``ObserverResult.innovation_d2``; None for the estimators
+        without their own noise model of a detection's distance from the map."""
+        return None
+
     def _frame(self) -> dict | None:
         state = getattr(self, "state", None)
         if state is None or not getattr(self, "keeps_map_frame", False):
@@ -895,6 +910,7 @@ class Stepper:
             map_frame=self._frame(),
             pose_cov=out.cov,
             landmark_cov=self.landmark_covariance(),
+            innovation_d2=self.detection_distances(det_first, det_stop),
         )
 
     def end_checks(self, stats: dict | None = None) -> None:

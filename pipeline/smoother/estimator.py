@@ -336,6 +336,8 @@ class BatchSmoother(Stepper):
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
         gauge, cov_kf, pose_cov, landmark_cov, (t_cov, c_cov) = _marginals(kf_t, problem, sol)
+        # every detection's χ² under the final model (the gated ones too): what the jump check judges
+        every = g.whitened_residuals(replace(problem, **self._detections(kf_of_det)), sol)
         self.result = {
             "kf_t": kf_t,
             "kf_of_det": kf_of_det,
@@ -345,6 +347,7 @@ class BatchSmoother(Stepper):
             "cov_t": kf_t[cov_kf],
             "pose_cov": pose_cov,
             "landmark_cov": landmark_cov,
+            "det_d2": np.einsum("mi,mi->m", every, every),
         }
         summary, seconds = self._summary(sol, chosen.seed.name, stats)
         if robust is not None:
@@ -1148,6 +1151,10 @@ class BatchSmoother(Stepper):
         d2 = np.sum(whitened_residuals(problem, sol) ** 2, axis=1)
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
+
+    def detection_distances(self, det_first: int, det_stop: int) -> np.ndarray | None:
+        """The detections' χ² under the solution's detection model (``ObserverResult.innovation_d2``)."""
+        return None if self.result is None else self.result["det_d2"][det_first:det_stop]
 
     def landmark_covariance(self) -> np.ndarray | None:
         """The landmarks' marginal covariances at the solution (None before the solve)."""
