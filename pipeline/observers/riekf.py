@@ -108,6 +108,18 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   seconds (held commands, ``noise.held``: MR.CLAM), which already holds the slow error (a walk on top made MR.CLAM
   worse), nor on moving 3-D logs, whose large corrections came from elsewhere (stereo detections' skewed depth: the
   walk from the start made those worse; docs/benchmarks.md, "riekf under wheel slip, session 19 (h-slip)").
+* Gyro-bias walk (learned from the log unless ``noise.gyro_bias_walk`` is given): the same test on the gyro-bias
+  rows, over the same windows (:func:`_walk_check` checks both): the summed ``|δb̂_Ω|²`` against the summed trace of
+  ``U Uᵀ`` on the gyro-bias rows, raised at the same ratios, and the first stretch run again from the start with the
+  gyro's walk learned when its largest ratio exceeds ``RESTART_RATIO`` (:meth:`RiEKF._walk_restart`, one restart
+  for both walks; run.json ``observer.filter.walk.gyro``, a note). A MEMS gyro's bias walks on any rig, so this is
+  not limited to ground robots: the velocity's limit is for its own false signal (slip's, the stereo depths'),
+  and the 3-D flights and hand-held rigs measured never reach the ratio (no number moved). Only where the angular
+  velocity is an IMU's gyro (its own topic, ``AlignedStream.two_twist_topics``, not held): an odometry's or a
+  VIO's angular velocity has no gyro bias that walks, and TagSLAM test_11's VIO twist reached the ratio with its
+  coloured error (the walk at the 100x cap made its map 0.138 -> 0.241 m); MR.CLAM's commanded ω is held. A gyro
+  bias walking 0.002 rad/s/√s on a generated ground robot (seed=9967) cost riekf 0.462 m against 0.256 learned
+  (0.234 given the true walk); docs/benchmarks.md, "riekf under a gyro bias that walks, session 35 (h-gyrowalk)".
 * Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
   gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
   propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
@@ -227,8 +239,8 @@ _T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK, _PLAN
 #: Velocity gaps (module docstring, "Gaps in the velocity samples"): the ``fs`` slots of the gyro's and the
 #: velocity's sample interval (their median; 0 where the stream is held: no gap factor).
 _GAP_OM, _GAP_V = 11, 12
-#: The gyro-bias walk's variance factor and its first stretch's largest ratio (module docstring, "Bias walks"): the
-#: velocity's are ``_WALK`` and ``_WALK_MAX``; :data:`_WALK_SLOTS` lists both walks' slots, gyro first.
+#: The gyro-bias walk's variance factor and its first stretch's largest ratio (module docstring, "Gyro-bias walk"):
+#: the velocity's are ``_WALK`` and ``_WALK_MAX``; :data:`_WALK_SLOTS` lists both walks' slots, gyro first.
 _GWALK, _GWALK_MAX = 13, 14
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
@@ -253,8 +265,8 @@ _TAIL_GATED, _LONGEST_GATED, _OPEN_GATED = 26, 27, 28
 #: The gyro-bias walk's raises and whether it is fixed (the velocity's are ``_WALK_RAISES`` and ``_WALK_FIXED``).
 _GWALK_RAISES, _GWALK_FIXED = 29, 30
 N_SLOTS = 31
-#: The two bias walks (module docstring, "Bias walks"), gyro then velocity: each one's ``fs`` slots (variance factor,
-#: the largest ratio), ``ns`` slots (raises, fixed), ``win_sum`` row
+#: The two bias walks (module docstring, "Gyro-bias walk"), gyro then velocity: each one's ``fs`` slots (variance
+#: factor, the largest ratio), ``ns`` slots (raises, fixed), ``win_sum`` row
 #: (its corrections' ring; the next row their expectation's).
 _WALK_SLOTS = ((_GWALK, _GWALK_MAX, _GWALK_RAISES, _GWALK_FIXED, 9), (_WALK, _WALK_MAX, _WALK_RAISES, _WALK_FIXED, 6))
 #: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
@@ -1326,7 +1338,7 @@ def _bias_corrections(xi, u, k3, win_sum):
     """The window's squared velocity-bias corrections ``|δb̂_V|²`` (``win_sum[5, 0]``) and what a consistent filter
     expects of them, the trace of the downdate ``U Uᵀ`` on the velocity-bias rows (``win_sum[5, 1]``; ``u`` = ``Uᵀ``,
     k3 × d), and the gyro bias's likewise (``win_sum[5, 2:4]``): the variance matching of the bias walks (module
-    docstring, "Bias walks")."""
+    docstring, "Velocity-bias walk", "Gyro-bias walk")."""
     for b in range(6, 12):
         e = 0.0
         for k in range(k3):
@@ -1476,8 +1488,8 @@ def _walk_check(t, fs, ns, win_sum, walk_log):
     (:func:`_bias_corrections`) join the ring of the last ``CONSISTENCY_WINDOWS`` (``win_sum`` rows 6 and 7 for the
     velocity's, 9 and 10 for the gyro's); when a bias's corrections over the ring exceed ``WALK_RATIO`` times their
     expectation (``WALK_RATIO_AGAIN`` once raised), its walk's standard deviation is multiplied by that ratio squared
-    (up to ``MAX_WALK_FACTOR`` in all), recorded, and the ring starts again (module docstring, "Bias walks"). True
-    when a walk changed."""
+    (up to ``MAX_WALK_FACTOR`` in all), recorded, and the ring starts again (module docstring, "Velocity-bias walk",
+    "Gyro-bias walk"). True when a walk changed."""
     if ns[_LOST] != 0 or win_sum[5, 1] <= 0.0:
         return False
     k = ns[_WALK_N] % CONSISTENCY_WINDOWS
@@ -2072,11 +2084,11 @@ class RiEKF(Stepper):
         self._setup(self.stream)
 
     def _walk_restart(self) -> bool:
-        """Whether the first stretch is run again (module docstring, "Bias walks"): when the largest ratio of a bias's
-        corrections to their expectation over the stretch exceeded ``RESTART_RATIO``, the filter starts again with
-        that walk's standard deviation multiplied by the ratio squared (or the walk the stretch raised to, if larger),
-        up to ``MAX_WALK_PASSES`` passes and ``MAX_WALK_FACTOR``: the velocity's on a ground robot on its floor only,
-        the gyro's wherever its bias is estimated (not a held gyro's)."""
+        """Whether the first stretch is run again (module docstring, "Velocity-bias walk", "Gyro-bias walk"): when the
+        largest ratio of a bias's corrections to their expectation over the stretch exceeded ``RESTART_RATIO``, the
+        filter starts again with that walk's standard deviation multiplied by the ratio squared (or the walk the
+        stretch raised to, if larger), up to ``MAX_WALK_PASSES`` passes and ``MAX_WALK_FACTOR``: the velocity's on a
+        ground robot on its floor only, the gyro's where the angular velocity is an IMU's gyro (:meth:`_setup`)."""
         ns, fs = self.state.ns, self.state.fs
         if self._passes >= MAX_WALK_PASSES:
             return False
