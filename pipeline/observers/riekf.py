@@ -108,6 +108,19 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   seconds (held commands, ``noise.held``: MR.CLAM), which already holds the slow error (a walk on top made MR.CLAM
   worse), nor on moving 3-D logs, whose large corrections came from elsewhere (stereo detections' skewed depth: the
   walk from the start made those worse; docs/benchmarks.md, "riekf under wheel slip, session 19 (h-slip)").
+* Gyro-bias walk (learned from the log unless ``noise.gyro_bias_walk`` is given): the same test on the gyro-bias
+  rows, over the same windows (:func:`_walk_check` checks both): the summed ``|δb̂_Ω|²`` against the summed trace of
+  ``U Uᵀ`` on the gyro-bias rows, raised at the same ratios, and the first stretch run again from the start with the
+  gyro's walk learned when its largest ratio exceeds ``RESTART_RATIO`` (:meth:`RiEKF._walk_restart`, one restart
+  for both walks; run.json ``observer.filter.walk.gyro``, a note). Only where the angular velocity is an IMU's gyro
+  (its own topic, ``AlignedStream.two_twist_topics``, not held): an odometry's or a VIO's angular velocity has no
+  gyro bias that walks, and TagSLAM test_11's VIO twist reached the ratio with its coloured error (the walk at the
+  100x cap made its map 0.138 -> 0.241 m); MR.CLAM's commanded ω is held. And, as the velocity's, only on a ground
+  robot whose floor is held: a MEMS gyro's bias walks on any rig, but the generated flights and hand-held rigs with
+  a walk never reached the ratio (nothing to gain there), while on the figure-8 other errors did (the detection
+  noise told half its size; detections moved 3 m at the end), and the walk learned from them moved those runs. A gyro
+  bias walking 0.002 rad/s/√s on a generated ground robot (seed=9967) cost riekf 0.462 m against 0.256 learned
+  (0.234 given the true walk); docs/benchmarks.md, "riekf under a gyro bias that walks, session 35 (h-gyrowalk)".
 * Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
   gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
   propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
@@ -227,6 +240,9 @@ _T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK, _PLAN
 #: Velocity gaps (module docstring, "Gaps in the velocity samples"): the ``fs`` slots of the gyro's and the
 #: velocity's sample interval (their median; 0 where the stream is held: no gap factor).
 _GAP_OM, _GAP_V = 11, 12
+#: The gyro-bias walk's variance factor and its first stretch's largest ratio (module docstring, "Gyro-bias walk"):
+#: the velocity's are ``_WALK`` and ``_WALK_MAX``; :data:`_WALK_SLOTS` lists both walks' slots, gyro first.
+_GWALK, _GWALK_MAX = 13, 14
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -247,7 +263,13 @@ _WALK_N, _WALK_RAISES, _WALK_FIXED = 23, 24, 25
 #: more fail, and dropped when a recovery or a blind stretch's re-anchoring acts; module docstring, "Bias priors
 #: narrowed").
 _TAIL_GATED, _LONGEST_GATED, _OPEN_GATED = 26, 27, 28
-N_SLOTS = 29
+#: The gyro-bias walk's raises and whether it is fixed (the velocity's are ``_WALK_RAISES`` and ``_WALK_FIXED``).
+_GWALK_RAISES, _GWALK_FIXED = 29, 30
+N_SLOTS = 31
+#: The two bias walks (module docstring, "Gyro-bias walk"), gyro then velocity: each one's ``fs`` slots (variance
+#: factor, the largest ratio), ``ns`` slots (raises, fixed), ``win_sum`` row
+#: (its corrections' ring; the next row their expectation's).
+_WALK_SLOTS = ((_GWALK, _GWALK_MAX, _GWALK_RAISES, _GWALK_FIXED, 9), (_WALK, _WALK_MAX, _WALK_RAISES, _WALK_FIXED, 6))
 #: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
 #: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
 #: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
@@ -266,9 +288,10 @@ MAX_SIGMA_SHARE = 0.25
 OVERCONFIDENT_D2 = 6.25
 CONSISTENCY_WINDOWS = 7
 #: Rows of the window sums ``win_sum`` (columns: ``CONSISTENCY_WINDOWS``): the window's summed innovations and their
-#: covariance (0-3), the consistency ring (4), the bias corrections (5-7), the run's innovation tally (8,
+#: covariance (0-3), the consistency ring (4), the bias corrections (5: the window's, gyro in columns 2-3, velocity
+#: in 0-1; 6-7 the velocity's ring, 9-10 the gyro's), the run's innovation tally (8,
 #: :func:`innovation_consistency`). Public: tests that call :func:`update` allocate it.
-WIN_SUM_ROWS = 9
+WIN_SUM_ROWS = 11
 #: The pose covariance's correlation factor (module docstring, :func:`correlation_factor`): the lags of a landmark's
 #: consecutive accepted innovations summed (a ν up to about ``CORRELATION_LAGS / CORRELATION_WINDOW`` is measured
 #: whole, a larger one truncated: under-, never overstated), Sokal's window constant ``c`` (the window is the first
@@ -1310,13 +1333,15 @@ def _sum_innovations(z, smat, k3, win_sum):
 def _bias_corrections(xi, u, k3, win_sum):
     """The window's squared velocity-bias corrections ``|δb̂_V|²`` (``win_sum[5, 0]``) and what a consistent filter
     expects of them, the trace of the downdate ``U Uᵀ`` on the velocity-bias rows (``win_sum[5, 1]``; ``u`` = ``Uᵀ``,
-    k3 × d): the variance matching of the velocity-bias walk (module docstring, "Velocity-bias walk")."""
-    for a in range(3):
+    k3 × d), and the gyro bias's likewise (``win_sum[5, 2:4]``): the variance matching of the bias walks (module
+    docstring, "Velocity-bias walk", "Gyro-bias walk")."""
+    for b in range(6, 12):
         e = 0.0
         for k in range(k3):
-            e += u[k, 9 + a] * u[k, 9 + a]
-        win_sum[5, 0] += xi[9 + a] * xi[9 + a]
-        win_sum[5, 1] += e
+            e += u[k, b] * u[k, b]
+        c = 0 if b >= 9 else 2
+        win_sum[5, c] += xi[b] * xi[b]
+        win_sum[5, c + 1] += e
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -1455,29 +1480,39 @@ def _consistency_check(t, ns, win_sum, consistency_log):
 
 @njit(cache=True)
 def _walk_check(t, fs, ns, win_sum, walk_log):
-    """A window that passed the gate: its squared velocity-bias corrections and their expectation
-    (:func:`_bias_corrections`) join the ring of the last ``CONSISTENCY_WINDOWS`` (rows 6 and 7 of ``win_sum``); when
-    the ring's corrections exceed ``WALK_RATIO`` times their expectation (``WALK_RATIO_AGAIN`` once raised), the
-    walk's standard deviation is multiplied by that ratio squared (up to ``MAX_WALK_FACTOR`` in all), recorded, and the
-    ring starts again (module docstring, "Velocity-bias walk"). True when the walk changed."""
-    if ns[_WALK_FIXED] or ns[_LOST] != 0 or win_sum[5, 1] <= 0.0:
+    """A window that passed the gate: each bias's squared corrections and their expectation
+    (:func:`_bias_corrections`) join the ring of the last ``CONSISTENCY_WINDOWS`` (``win_sum`` rows 6 and 7 for the
+    velocity's, 9 and 10 for the gyro's); when a bias's corrections over the ring exceed ``WALK_RATIO`` times their
+    expectation (``WALK_RATIO_AGAIN`` once raised), its walk's standard deviation is multiplied by that ratio squared
+    (up to ``MAX_WALK_FACTOR`` in all), recorded, and the ring starts again (module docstring, "Velocity-bias walk",
+    "Gyro-bias walk"). True when a walk changed."""
+    if ns[_LOST] != 0 or win_sum[5, 1] <= 0.0:
         return False
     k = ns[_WALK_N] % CONSISTENCY_WINDOWS
-    win_sum[6, k], win_sum[7, k] = win_sum[5, 0], win_sum[5, 1]
+    for w in range(2):
+        c, ring = 2 - 2 * w, _WALK_SLOTS[w][4]
+        win_sum[ring, k], win_sum[ring + 1, k] = win_sum[5, c], win_sum[5, c + 1]
     ns[_WALK_N] += 1
     if ns[_WALK_N] < CONSISTENCY_WINDOWS:
         return False
-    ratio = win_sum[6].sum() / win_sum[7].sum()
-    fs[_WALK_MAX] = max(fs[_WALK_MAX], ratio)
-    if ratio <= (WALK_RATIO_AGAIN if ns[_WALK_RAISES] else WALK_RATIO) or fs[_WALK] >= MAX_WALK_FACTOR**2:
-        return False
-    fs[_WALK] = min(fs[_WALK] * ratio**4, MAX_WALK_FACTOR**2)
-    ns[_WALK_N] = 0
-    r = ns[_WALK_RAISES]
-    if r < walk_log.shape[0]:
-        walk_log[r, 0], walk_log[r, 1], walk_log[r, 2] = t, ratio, math.sqrt(fs[_WALK])
-    ns[_WALK_RAISES] += 1
-    return True
+    changed = False
+    for w in range(2):
+        f, fmax, raises, fixed, ring = _WALK_SLOTS[w]
+        if ns[fixed] or win_sum[ring + 1].sum() <= 0.0:
+            continue
+        ratio = win_sum[ring].sum() / win_sum[ring + 1].sum()
+        fs[fmax] = max(fs[fmax], ratio)
+        if ratio <= (WALK_RATIO_AGAIN if ns[raises] else WALK_RATIO) or fs[f] >= MAX_WALK_FACTOR**2:
+            continue
+        fs[f] = min(fs[f] * ratio**4, MAX_WALK_FACTOR**2)
+        r = ns[_WALK_RAISES] + ns[_GWALK_RAISES]
+        if r < walk_log.shape[0]:
+            walk_log[r, 0], walk_log[r, 1], walk_log[r, 2], walk_log[r, 3] = t, ratio, math.sqrt(fs[f]), w
+        ns[raises] += 1
+        changed = True
+    if changed:
+        ns[_WALK_N] = 0
+    return changed
 
 
 @njit(cache=True)
@@ -1543,7 +1578,7 @@ def _window_check(
             changed = True
     gated_lm[:] = False
     win_sum[:4, :] = 0.0
-    win_sum[5, :2] = 0.0
+    win_sum[5, :4] = 0.0
     return changed
 
 
@@ -1633,7 +1668,12 @@ def _advance(
     want_cov = cov_out.shape[0] > 0
     work = 0
     scale, det_scale = fs[_SCALE], fs[_DSCALE]
-    qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale * fs[_WALK])
+    qs_om, qs_v, qs_bw, qs_bv = (
+        q_om * scale,
+        q_v * scale,
+        q_bw * math.sqrt(scale * fs[_GWALK]),
+        q_bv * math.sqrt(scale * fs[_WALK]),
+    )
     gap_om, gap_v = fs[_GAP_OM], fs[_GAP_V]
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
@@ -1742,7 +1782,7 @@ def _advance(
             ):
                 scale, det_scale = fs[_SCALE], fs[_DSCALE]
                 qs_om, qs_v = q_om * scale, q_v * scale
-                qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale * fs[_WALK])
+                qs_bw, qs_bv = q_bw * math.sqrt(scale * fs[_GWALK]), q_bv * math.sqrt(scale * fs[_WALK])
             fs[_MEAS_T] = t_next
             jf += 1
         else:
@@ -1780,9 +1820,9 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=13)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=15)
         self.fs[_SCALE] = 1.0
-        self.fs[_WALK] = 1.0
+        self.fs[_WALK] = self.fs[_GWALK] = 1.0
         self.fs[_DSCALE] = 1.0
         self.fs[_KNOWN_T] = np.inf  # no known landmark's detection yet: no blind stretch either
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
@@ -1813,7 +1853,7 @@ class _State(KernelState):
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
         self.consistency_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
-        self.walk_log = np.zeros((MAX_LOG, 3))  # the velocity-bias walk raised: time, ratio, factor on its σ
+        self.walk_log = np.zeros((MAX_LOG, 4))  # a bias walk raised: time, ratio, factor on its σ, which (0 gyro)
         self.blind_log = np.zeros((MAX_LOG, 4))  # re-opened after a blind stretch: time, its length, gated share, σ
 
     def arrays(self) -> tuple:
@@ -1893,8 +1933,9 @@ class RiEKF(Stepper):
         self._offset: time_offset.Background | None = time_offset.Background(stream)
         self._time_offset: dict | None = None  # None while it is being estimated
         self._known = False  # whether the estimate is applied is known and acted upon (:meth:`_offset_applied`)
-        # the walk's variance factor a pass starts from, the passes over the first stretch, whether one was returned
-        self._walk0, self._passes, self._returned = 1.0, 1, False
+        # the walks' variance factors a pass starts from (gyro, velocity), the passes over the first stretch, whether
+        # one was returned
+        self._walk0, self._passes, self._returned = [1.0, 1.0], 1, False
         # the bias priors' narrowing: the passes with narrowed priors, and each earlier pass's gated run at its end
         self._prior_passes, self._lost_runs, self._noise0 = 0, [], self.noise
         self._prior_kept = True  # False once the narrowing failed and the priors were put back
@@ -1931,7 +1972,7 @@ class RiEKF(Stepper):
         self.state.ns[_WALK_FIXED] = int(nz.sources.get("velocity_bias_walk") == "config")
         if pp["used"]:
             self.state.b_om[:], self.state.b_v[:] = pp["bias"][:3], pp["bias"][3:]
-        self.state.fs[_WALK] = self._walk0
+        self.state.fs[_GWALK], self.state.fs[_WALK] = self._walk0
         # the detection law (σ0, k, a) and the factors of σ(r)² across the line of sight and of what the range
         # adds (the ratio's split): the kernel evaluates it at each detection's predicted (or measured) range
         self.det_law = np.array(
@@ -1943,6 +1984,11 @@ class RiEKF(Stepper):
         white = replace(nz, gyro=self._white.gyro)
         self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, white, stream.velocity_period_ns * 1e-9)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
+        # the gyro's only where the angular velocity is an IMU's gyro (its own topic, not held) on a ground robot on
+        # its floor: an odometry's or a VIO's angular velocity has no gyro bias that walks, and off the floor other
+        # errors passed its ratio where no walk was seen to (module docstring, "Gyro-bias walk")
+        imu_gyro = getattr(stream, "two_twist_topics", False) and "gyro" not in nz.held and self.planar["held"]
+        self.state.ns[_GWALK_FIXED] = int(nz.sources.get("gyro_bias_walk") == "config" or not imu_gyro)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
         self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(
             stream, self.vel_t, nz.held, nz.velocity
@@ -2030,27 +2076,34 @@ class RiEKF(Stepper):
         self.noise = self._noise0 = unresolved_gyro(self._white)
         self.pair_prior = pair_bias_prior(self._recorded, self.noise)
         # the walk's and the bias priors' restarts start over at these levels (:meth:`_settled`)
-        self._walk0, self._passes, self._prior_passes, self._lost_runs = 1.0, 1, 0, []
+        self._walk0, self._passes, self._prior_passes, self._lost_runs = [1.0, 1.0], 1, 0, []
         self._prior_kept, self._tried, self._prior_chosen = True, [], False
         self._setup(self.stream)
 
     def _walk_restart(self) -> bool:
-        """Whether the first stretch is run again (module docstring, "Velocity-bias walk"): when the largest ratio of
-        its velocity-bias corrections to their expectation exceeded ``RESTART_RATIO``, the filter starts again with
-        the walk's standard deviation multiplied by that ratio squared (or the walk the stretch raised to, if larger),
-        up to ``MAX_WALK_PASSES`` passes and ``MAX_WALK_FACTOR``."""
+        """Whether the first stretch is run again (module docstring, "Velocity-bias walk", "Gyro-bias walk"): when the
+        largest ratio of a bias's corrections to their expectation over the stretch exceeded ``RESTART_RATIO``, the
+        filter starts again with that walk's standard deviation multiplied by the ratio squared (or the walk the
+        stretch raised to, if larger), up to ``MAX_WALK_PASSES`` passes and ``MAX_WALK_FACTOR``: the velocity's on a
+        ground robot on its floor only, the gyro's where the angular velocity is an IMU's gyro (:meth:`_setup`)."""
         ns, fs = self.state.ns, self.state.fs
-        # given; or the slow error is in the velocity level (held commands); or not a ground robot on its floor
-        if ns[_WALK_FIXED] or "velocity" in self.noise.held or not self.planar["held"]:
+        if self._passes >= MAX_WALK_PASSES:
             return False
-        if self._passes >= MAX_WALK_PASSES or fs[_WALK_MAX] <= RESTART_RATIO:
-            return False
-        if self._walk0 >= MAX_WALK_FACTOR**2:
-            return False
-        self._walk0 = min(max(self._walk0 * fs[_WALK_MAX] ** 4, fs[_WALK]), MAX_WALK_FACTOR**2)
-        self._passes += 1
-        self._setup(self.stream)
-        return True
+        # the velocity's given; or its slow error is in the velocity level (held commands); or not a ground robot on
+        # its floor. The gyro's given or not an IMU's (:meth:`_setup`)
+        learn = (
+            not ns[_GWALK_FIXED],
+            not ns[_WALK_FIXED] and "velocity" not in self.noise.held and self.planar["held"],
+        )
+        raised = False
+        for w, (f, fmax) in enumerate(((_GWALK, _GWALK_MAX), (_WALK, _WALK_MAX))):
+            if learn[w] and fs[fmax] > RESTART_RATIO and self._walk0[w] < MAX_WALK_FACTOR**2:
+                self._walk0[w] = min(max(self._walk0[w] * fs[fmax] ** 4, fs[f]), MAX_WALK_FACTOR**2)
+                raised = True
+        if raised:
+            self._passes += 1
+            self._setup(self.stream)
+        return raised
 
     def _prior_restart(self) -> bool:
         """Whether the first stretch is run again with narrower bias priors (module docstring, "Bias priors
@@ -2163,7 +2216,7 @@ class RiEKF(Stepper):
         when no frame allowed the re-anchoring and the pose is held from before the gap."""
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
-        walks = np.sqrt(st.fs[_SCALE] * np.array([1.0, st.fs[_WALK]])) * np.array(self.params[2:4])
+        walks = np.sqrt(st.fs[_SCALE] * np.array([st.fs[_GWALK], st.fs[_WALK]])) * np.array(self.params[2:4])
         flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
@@ -2392,21 +2445,33 @@ class RiEKF(Stepper):
         }
 
     def _walk(self) -> dict:
-        """The velocity-bias walk for run.json: given (configuration) or learned, the passes over the first stretch
-        and the walk the last one started from (:meth:`_walk_restart`), its value now and each raise of the last pass
-        (log seconds, the ratio of the bias corrections to their expectation, the walk after it)."""
+        """The bias walks for run.json: each given (configuration) or learned, the passes over the first stretch and
+        the walks the last one started from (:meth:`_walk_restart`), their values now and each raise of the last pass
+        (log seconds, which walk, the ratio of the bias corrections to their expectation, the walk after it)."""
         ns, fs = self.state.ns, self.state.fs
         t0 = float(self.vel_t[0]) if self.vel_t.size else 0.0
-        given = float(self.params[3])
+        given = [float(self.params[2]), float(self.params[3])]
+        n = min(int(ns[_WALK_RAISES] + ns[_GWALK_RAISES]), MAX_LOG)
         return {
             "learned": not ns[_WALK_FIXED],
-            "given_m_s_sqrt_s": given,
+            "given_m_s_sqrt_s": given[1],
             "passes": self._passes,
-            "start_walk": given * float(np.sqrt(self._walk0)),
-            "velocity_bias_walk": given * float(np.sqrt(fs[_WALK])),
+            "start_walk": given[1] * float(np.sqrt(self._walk0[1])),
+            "velocity_bias_walk": given[1] * float(np.sqrt(fs[_WALK])),
+            "gyro": {
+                "learned": not ns[_GWALK_FIXED],
+                "given_rad_s_sqrt_s": given[0],
+                "start_walk": given[0] * float(np.sqrt(self._walk0[0])),
+                "gyro_bias_walk": given[0] * float(np.sqrt(fs[_GWALK])),
+            },
             "raises": [
-                {"t_s": round(float(r[0]) - t0, 3), "ratio": round(float(r[1]), 3), "walk": given * float(r[2])}
-                for r in self.state.walk_log[: min(int(ns[_WALK_RAISES]), MAX_LOG)]
+                {
+                    "t_s": round(float(r[0]) - t0, 3),
+                    "bias": "gyro" if r[3] == 0 else "velocity",
+                    "ratio": round(float(r[1]), 3),
+                    "walk": given[int(r[3] != 0)] * float(r[2]),
+                }
+                for r in self.state.walk_log[:n]
             ],
         }
 
@@ -2877,25 +2942,30 @@ def recovery_notes(filt: dict) -> list[str]:
             "re-observed landmarks re-anchored it (run.json observer.filter.blind)"
         )
     walk = filt.get("walk") or {}
-    if walk.get("passes", 1) > 1:
-        notes.append(
-            f"riekf: velocity-bias walk learned from the log: {walk['given_m_s_sqrt_s']:.3g} -> "
-            f"{walk['start_walk']:.3g} m/s/sqrt(s) from the start ({walk['passes'] - 1} run(s) again): the "
-            f"velocity-bias corrections over {CONSISTENCY_WINDOWS} windows of {WINDOW} detections reached over "
-            f"{RESTART_RATIO:g} times the size (squared) a consistent filter expects: a slowly varying velocity error, "
-            "such as wheel slip, that the noise model lacked (run.json observer.filter.walk; noise: velocity_bias_walk "
-            "fixes it)"
-        )
-    if walk.get("raises"):
-        first = walk["raises"][0]
-        notes.append(
-            f"riekf: velocity-bias walk learned from the log: {walk['given_m_s_sqrt_s']:.3g} -> "
-            f"{walk['velocity_bias_walk']:.3g} m/s/sqrt(s) ({len(walk['raises'])} raise(s), the first at "
-            f"{first['t_s']:.2f} s): over {CONSISTENCY_WINDOWS} windows of {WINDOW} detections the velocity-bias "
-            f"corrections were {first['ratio']:.3g} times the size (squared) a consistent filter expects: a slowly "
-            "varying velocity error, such as wheel slip (run.json observer.filter.walk; noise: velocity_bias_walk "
-            "fixes it)"
-        )
+    gyro = walk.get("gyro") or {}
+    said = (
+        ("velocity", "m/s/sqrt(s)", "a slowly varying velocity error, such as wheel slip", walk, "given_m_s_sqrt_s"),
+        ("gyro", "rad/s/sqrt(s)", "a gyro bias that drifts", gyro, "given_rad_s_sqrt_s"),
+    )
+    for name, unit, what, w, given in said:
+        if w and w["start_walk"] > w[given]:
+            notes.append(
+                f"riekf: {name}-bias walk learned from the log: {w[given]:.3g} -> {w['start_walk']:.3g} {unit} from "
+                f"the start ({walk['passes'] - 1} run(s) again): the {name}-bias corrections over "
+                f"{CONSISTENCY_WINDOWS} windows of {WINDOW} detections reached over {RESTART_RATIO:g} times the size "
+                f"(squared) a consistent filter expects: {what}, that the noise model lacked (run.json "
+                f"observer.filter.walk; noise: {name}_bias_walk fixes it)"
+            )
+        raises = [r for r in walk.get("raises") or [] if r.get("bias", "velocity") == name]
+        if raises:
+            first = raises[0]
+            notes.append(
+                f"riekf: {name}-bias walk learned from the log: {w[given]:.3g} -> "
+                f"{w[f'{name}_bias_walk']:.3g} {unit} ({len(raises)} raise(s), the first at {first['t_s']:.2f} s): "
+                f"over {CONSISTENCY_WINDOWS} windows of {WINDOW} detections the {name}-bias corrections were "
+                f"{first['ratio']:.3g} times the size (squared) a consistent filter expects: {what} (run.json "
+                f"observer.filter.walk; noise: {name}_bias_walk fixes it)"
+            )
     notes += _prior_notes(filt.get("bias_priors") or {})
     con = filt.get("consistency") or {}
     if con.get("overconfident"):
