@@ -439,3 +439,28 @@ def test_the_map_names_its_frame(monkeypatch, tmp_path):
     plots.plot_map(tmp_path / "map.png", np.array([1, 2]), xyz, np.array([3, 4]), xyz)
     (fig,) = figures
     assert fig.axes[0].get_title().startswith("Landmark map, output frame: 2 landmarks")
+
+
+def test_a_bias_figure_s_y_labels_stay_inside_the_figure(monkeypatch):
+    """MR.CLAM 6 robot 3's batch biases.png: velocity biases of a few mm/s tick as 0.0025 and -0.0005, and the
+    label "velocity bias b_V [m/s]" beside them was cut off at the figure's left edge (fixed margins in inches).
+    The grid moves right by what the labels reach past the edge; a figure whose labels fit is drawn as before."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    saved = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: saved.append(fig) or save(fig, path))
+    t = np.linspace(0.0, 900.0, 500)
+    gyro = np.tile([0.0, 0.0, 0.005], (len(t), 1))
+    velocity = np.tile([0.00245, -0.00063, 0.0], (len(t), 1))
+    plots.plot_biases(io.BytesIO(), t, gyro, velocity, window_start_s=700.0)
+    plots.plot_biases(io.BytesIO(), t, 10.0 * gyro, 100.0 * velocity)  # ticks 0.05, 0.25: they fit
+    (small, plain) = saved
+    renderer = small.canvas.get_renderer()
+    for ax in small.axes:
+        box = ax.yaxis.get_tightbbox(renderer)
+        assert box.x0 >= 0.0 and ax.yaxis.label.get_window_extent(renderer).x0 >= 0.0, ax.get_ylabel()
+    assert plain.subplotpars.left == pytest.approx(0.85 / 10.0)  # _figure's margin, not moved
+    assert small.subplotpars.left > plain.subplotpars.left
