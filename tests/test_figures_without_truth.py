@@ -464,3 +464,20 @@ def test_a_bias_figure_s_y_labels_stay_inside_the_figure(monkeypatch):
         assert box.x0 >= 0.0 and ax.yaxis.label.get_window_extent(renderer).x0 >= 0.0, ax.get_ylabel()
     assert plain.subplotpars.left == pytest.approx(0.85 / 10.0)  # _figure's margin, not moved
     assert small.subplotpars.left > plain.subplotpars.left
+
+
+def test_the_innovation_median_is_drawn_over_the_percentile_and_maximum(monkeypatch):
+    """TagSLAM test_22's measurements.png: one or two detections per time bin, so median, 95th percentile and
+    maximum are one value; the median, drawn first, lay under the other two and its blue line was nowhere."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    saved = []
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: saved.append(fig) or save(fig, path))
+    t = np.arange(0.0, 10.0, 0.25)
+    one = {"t_s": t, "median": np.ones_like(t), "p95": np.ones_like(t), "max": np.ones_like(t)}
+    plots.plot_measurements(io.BytesIO(), t, np.ones_like(t), one)
+    lines = {line.get_label(): line.get_zorder() for line in saved[0].axes[1].get_lines()}
+    assert lines["median"] > lines["95th percentile"] > lines["maximum"], lines

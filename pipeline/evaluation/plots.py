@@ -810,8 +810,9 @@ def plot_measurements(
     ax_d.set_ylim(0, max(1, int(np.max(per_frame)) if len(per_frame) else 1) + 0.5)
     if innovation is not None and len(innovation["t_s"]):
         t, median, p95, top = break_at_gaps(*(innovation[k] for k in ("t_s", "median", "p95", "max")))
-        ax_i.plot(t, median, ".-", color="tab:blue", lw=1.0, ms=2, label="median")  # dots: lone bins
-        ax_i.plot(t, p95, ".-", color="tab:orange", lw=1.0, ms=2, label="95th percentile")
+        # dots: lone bins; the median over the others (a bin of one detection has one value: a 4 Hz camera's)
+        ax_i.plot(t, median, ".-", color="tab:blue", lw=1.0, ms=2, label="median", zorder=2.2)
+        ax_i.plot(t, p95, ".-", color="tab:orange", lw=1.0, ms=2, label="95th percentile", zorder=2.1)
         ax_i.plot(t, top, ".-", color="tab:red", lw=0.6, ms=1.5, alpha=0.6, label="maximum")
         ax_i.legend(loc="upper right", fontsize=8)
     else:
