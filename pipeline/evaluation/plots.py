@@ -296,13 +296,16 @@ def plot_errors(
     verdict: str | None = None,
     extent_m: float | None = None,
     band_label: str = "convergence band",
+    attitude_turned: tuple[np.ndarray, float, float] | None = None,
 ) -> Path:
     """Aligned position and attitude error over time; on the position panel only (the convergence figure is about
     the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time, and in
     its legend ``verdict``: why there is no convergence time, or what qualifies the one drawn (a coarse level), so
     the band is never read as a convergence the report does not claim; ``extent_m`` (a lost estimate's) the path's
     extent its level is judged against, drawn so the level is seen above it; ``band_label`` names the band line
-    (the whole-run fit's band when the frame of the run's end decided the convergence)."""
+    (the whole-run fit's band when the frame of the run's end decided the convergence). ``attitude_turned``: the
+    attitude error per pair less the constant turn of the truth's body frame against the estimate's, that turn
+    (deg) and that error's rmse (report.md's note on the rotation APE), drawn beside the error as aligned."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m])
@@ -315,6 +318,16 @@ def plot_errors(
         ax_p.axhline(extent_m, color="0.3", ls="--", lw=1.0, label=f"path's extent {extent_m:.3g} m RMS")
     sel = envelope(len(t_s), [attitude_error_deg])
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
+    if attitude_turned is not None:
+        left, angle, rmse = attitude_turned
+        sel = envelope(len(t_s), [left])
+        ax_r.plot(
+            t_s[sel],
+            left[sel],
+            color="tab:green",
+            lw=1.0,
+            label=f"less the truth frame's constant {angle:.1f} deg turn (report.md's note): {rmse:.3g} deg rmse",
+        )
     if convergence_t_s is not None:
         label = f"converged at {convergence_t_s:.2f} s" + (f" ({verdict})" if verdict else "")
         ax_p.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0, label=label)
