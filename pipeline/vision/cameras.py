@@ -433,7 +433,8 @@ def _tagslam_sizes(bodies: list) -> str:
             default = _number(body.get("default_tag_size"))
             if default is not None:
                 parts.append(f"default_tag_size {default:g} m (body '{name}')")
-            for tag in body.get("tags") or [] if isinstance(body.get("tags"), list) else []:
+            tags = body.get("tags")
+            for tag in tags if isinstance(tags, list) else []:
                 size = _number(tag.get("size")) if isinstance(tag, dict) else None
                 if size is not None and size != default and isinstance(tag.get("id"), int):
                     other.setdefault(size, []).append(int(tag["id"]))
