@@ -521,7 +521,7 @@ def test_a_converged_figure_says_beside_it_that_the_runs_own_status_is_off(tmp_p
     assert [n for n in notes if n.startswith("riekf: convergence: ") and said in n], notes
 
 
-def test_the_error_figure_draws_the_attitude_error_less_a_turn_of_the_truth_frame(monkeypatch):
+def test_the_error_figure_draws_the_attitude_error_less_a_turn_of_the_truth_frame(drawn_figures):
     """TagSLAM test_22, riekf: errors.png drew an attitude error of 133-166 deg over the whole run and nothing on
     the figure said that report.md's note finds the truth's body frame turned 147.8 deg against the estimate's
     (9.7 deg rmse without it). The attitude panel now draws that error less the turn beside it, with the turn and
@@ -555,13 +555,10 @@ def test_the_error_figure_draws_the_attitude_error_less_a_turn_of_the_truth_fram
     )
     turn = truth_frame_turn(ev)
     conv = {"band_m": 0.2, "t_since_start_s": None}
-    saved = []
-    save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, path: saved.append(fig) or save(fig, path))
     for given in (turn, None):
         name, _, kwargs = error_plot_job(conv, ev, given)
         getattr(plots, name)(io.BytesIO(), **kwargs)
-    (turned, plain) = ([line for line in fig.axes[1].get_lines()] for fig in saved)
+    (turned, plain) = ([line for line in fig.axes[1].get_lines()] for fig in drawn_figures)
     assert [line.get_label() for line in plain] == ["attitude error angle"]
     less = turned[1]
     assert less.get_label() == (
