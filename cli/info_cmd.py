@@ -218,6 +218,8 @@ def format_readiness(ready) -> str:
         else:
             state = f"ready once the config gives {' and '.join(needs)}" if needs else "ready"
         lines.append(f"    {', '.join(names)}: {state}")
+    if ready.trajectory:
+        lines.append(f"    {ready.trajectory}")
     needed = {m for e in ready.estimators for m in e.missing} | {"truth"}
     for role, ways in ready.satisfy.items():
         if role in needed:

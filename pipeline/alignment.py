@@ -50,7 +50,13 @@ from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, shared_id_text, stamp_pace
 from slamobs.pipeline.readers.inspect import GAP_FACTOR
-from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
+from slamobs.pipeline.readers.roles import (
+    DIRECTION_ROLES,
+    REQUIRED_ROLES,
+    ROLE_PURPOSE,
+    how_to_satisfy,
+    trajectory_use,
+)
 from slamobs.pipeline.readers.tf_tree import BODY_FROM_CONFIG, BODY_FROM_DEFAULT
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -546,11 +552,7 @@ def check_required(streams: LogStreams, directions: int = 0, needed_by: str | No
         roles = missing + lacking
         poses = ""
         if {"angular_velocity", "linear_velocity"} <= set(missing) and _has_samples(streams.truth):
-            topic = streams.truth.topic  # a log of trajectories (evo's example bags): what it is good for
-            poses = (
-                f"; its poses ({topic}) are a trajectory: `slamobs evaluate {streams.path}:{topic} EST` measures "
-                "another's error"
-            )
+            poses = f"; {trajectory_use(streams.path, streams.truth.topic)}"  # a log of trajectories (evo's bags)
         untyped = ""
         if streams.untyped:  # a damaged metadata.yaml: the topic that would have given the role may be one
             verb = "has its" if len(streams.untyped) == 1 else "have their"

@@ -338,6 +338,9 @@ def sensor_levels(streams) -> dict[str, dict]:
                 + ")"
             }
             continue
+        if found.held and all(found.held):  # sparkfun_razor's /imu/mag: 103 values in 2144 messages, "7.9e-22 T"
+            out[name] = {"why": f"the samples on {stream.topic} {HELD_SAMPLES}"}
+            continue
         out[name] = {
             "value": _plain(found.value),
             "unit": unit,
@@ -555,6 +558,13 @@ def _scaled(e: Estimate, factor: Estimate) -> Estimate:
     return Estimate(value, unc, f"{e.method}; scaled by {factor.value:.3g} ({factor.method})", e.samples)
 
 
+#: What a stream's samples are when every axis holds its values (``Estimate.held``): a run's note and
+#: ``info --noise``'s line on a log that cannot run say it in these words.
+HELD_SAMPLES = (
+    "hold their values (commanded or quantised: most repeat the previous one), so their noise cannot be seen in them"
+)
+
+
 def visible_noise(estimate: Estimate | None, name: str, notes: list[str], where: str = "") -> Estimate | None:
     """``estimate``, or None when every axis of its stream holds its values (a commanded or quantised stream,
     e.g. MR.CLAM's commanded velocities): zero noise there would make riekf and batch trust it blindly. ``where``
@@ -562,8 +572,7 @@ def visible_noise(estimate: Estimate | None, name: str, notes: list[str], where:
     if estimate is None or not estimate.held or not all(estimate.held):
         return estimate
     notes.append(
-        f"noise: the {name} samples hold their values (commanded or quantised: most repeat the previous one), so "
-        f"their noise cannot be seen in them (estimated from the detections instead, where they allow it){where}"
+        f"noise: the {name} samples {HELD_SAMPLES} (estimated from the detections instead, where they allow it){where}"
     )
     return None
 

@@ -25,6 +25,7 @@ from slamobs.pipeline.readers.roles import (
     accepted_types,
     empty_topics,
     how_to_satisfy,
+    trajectory_use,
 )
 
 #: The roles the readiness section lists, in order: what every estimator needs, the directions, the truth.
@@ -72,6 +73,9 @@ class Readiness:
     #: the sim_truth topic and what it holds (``LogInfo.sim_truth``: an MR.CLAM import's landmark survey, a
     #: simulated log's map and biases), "" when the log has none: the map error's truth, beside the trajectory's
     map_truth: str = ""
+    #: a log of poses without the velocities (evo's example bags): what it is good for instead
+    #: (``roles.trajectory_use``, the words ``run``'s error ends with), "" otherwise
+    trajectory: str = ""
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary."""
@@ -142,7 +146,12 @@ def readiness(info: LogInfo, config: RunConfig | None = None) -> Readiness:
     satisfy = {r.role: how_to_satisfy(r.role) + _candidates(info, r.role) for r in roles if not r.found}
     sim = info.roles.get("sim_truth")
     map_truth = f"{sim}  ({info.sim_truth})" if sim and info.sim_truth else ""
-    return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators), map_truth)
+    truth = info.roles.get("truth", "")
+    trajectory = ""
+    if truth and not {"angular_velocity", "linear_velocity"} & found:
+        others = [t.topic for t in info.topics if t.count and t.msgtype in accepted_types("truth") and t.topic != truth]
+        trajectory = trajectory_use(info.path, truth, others)
+    return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators), map_truth, trajectory)
 
 
 def run_yaml(roles: tuple[RoleStatus, ...], estimators: tuple[EstimatorStatus, ...]) -> str:

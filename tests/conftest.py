@@ -39,3 +39,17 @@ def pytest_collection_modifyitems(items):
         raise pytest.UsageError(f"tests/conftest.py: LONGEST_FIRST names test modules that do not exist: {gone}")
     rank = {name: i for i, name in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
+@pytest.fixture
+def drawn_figures(monkeypatch):
+    """The matplotlib figures saved while a test runs, in order (each as it was when saved): a test draws a figure
+    into a buffer and reads its axes, labels and layout from these."""
+    from matplotlib.figure import Figure
+
+    saved = []
+    savefig = Figure.savefig
+    monkeypatch.setattr(
+        Figure, "savefig", lambda fig, *args, **kwargs: saved.append(fig) or savefig(fig, *args, **kwargs)
+    )
+    return saved

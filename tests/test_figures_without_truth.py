@@ -439,3 +439,39 @@ def test_the_map_names_its_frame(monkeypatch, tmp_path):
     plots.plot_map(tmp_path / "map.png", np.array([1, 2]), xyz, np.array([3, 4]), xyz)
     (fig,) = figures
     assert fig.axes[0].get_title().startswith("Landmark map, output frame: 2 landmarks")
+
+
+def test_a_bias_figure_s_y_labels_stay_inside_the_figure(drawn_figures):
+    """MR.CLAM 6 robot 3's batch biases.png: velocity biases of a few mm/s tick as 0.0025 and -0.0005, and the
+    label "velocity bias b_V [m/s]" beside them was cut off at the figure's left edge (fixed margins in inches).
+    The grid moves right by what the labels reach past the edge; a figure whose labels fit is drawn as before."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.linspace(0.0, 900.0, 500)
+    gyro = np.tile([0.0, 0.0, 0.005], (len(t), 1))
+    velocity = np.tile([0.00245, -0.00063, 0.0], (len(t), 1))
+    plots.plot_biases(io.BytesIO(), t, gyro, velocity, window_start_s=700.0)
+    plots.plot_biases(io.BytesIO(), t, 10.0 * gyro, 100.0 * velocity)  # ticks 0.05, 0.25: they fit
+    (small, plain) = drawn_figures
+    renderer = small.canvas.get_renderer()
+    for ax in small.axes:
+        box = ax.yaxis.get_tightbbox(renderer)
+        assert box.x0 >= 0.0 and ax.yaxis.label.get_window_extent(renderer).x0 >= 0.0, ax.get_ylabel()
+    assert plain.subplotpars.left == pytest.approx(0.85 / 10.0)  # _figure's margin, not moved
+    assert small.subplotpars.left > plain.subplotpars.left
+
+
+def test_the_innovation_median_is_drawn_over_the_percentile_and_maximum(drawn_figures):
+    """TagSLAM test_22's measurements.png: one or two detections per time bin, so median, 95th percentile and
+    maximum are one value; the median, drawn first, lay under the other two and its blue line was nowhere."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.arange(0.0, 10.0, 0.25)
+    one = {"t_s": t, "median": np.ones_like(t), "p95": np.ones_like(t), "max": np.ones_like(t)}
+    plots.plot_measurements(io.BytesIO(), t, np.ones_like(t), one)
+    lines = {line.get_label(): line.get_zorder() for line in drawn_figures[0].axes[1].get_lines()}
+    assert lines["median"] > lines["95th percentile"] > lines["maximum"], lines

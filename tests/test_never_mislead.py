@@ -519,3 +519,50 @@ def test_a_converged_figure_says_beside_it_that_the_runs_own_status_is_off(tmp_p
     assert f"Convergence: {said}" in md and "The run's own record: its own status is gated_at_end" in md, md
     notes = caveats({"riekf": RunSummary(tmp_path / "out", meta, {}, report=report)})
     assert [n for n in notes if n.startswith("riekf: convergence: ") and said in n], notes
+
+
+def test_the_error_figure_draws_the_attitude_error_less_a_turn_of_the_truth_frame(drawn_figures):
+    """TagSLAM test_22, riekf: errors.png drew an attitude error of 133-166 deg over the whole run and nothing on
+    the figure said that report.md's note finds the truth's body frame turned 147.8 deg against the estimate's
+    (9.7 deg rmse without it). The attitude panel now draws that error less the turn beside it, with the turn and
+    the rmse in its legend; a report without a turn draws the one line."""
+    import io
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation.figure_jobs import error_plot_job
+    from slamobs.pipeline.evaluation.sections import truth_frame_turn
+    from slamobs.pipeline.lie import so3_exp
+
+    rng = np.random.default_rng(5)
+    n = 200
+    t = np.arange(n) * 0.1
+    est = np.array([so3_exp(v) for v in rng.normal(0.0, 0.02, (n, 3)).cumsum(axis=0)])
+    ref_rot = np.matmul(est, quat_to_rot(X_XYZW))  # the truth's body frame turned by a constant rotation
+    cos = (np.einsum("nij,nij->n", est, ref_rot) - 1.0) / 2.0
+    errors = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    ev = SimpleNamespace(
+        estimate=SimpleNamespace(t_ns=(t * 1e9).astype(np.int64)),
+        error_level=((t * 1e9).astype(np.int64), np.full(n, 0.1)),
+        pair_t_est_ns=(t * 1e9).astype(np.int64),
+        translation=SimpleNamespace(errors=np.full(n, 0.1), stats={"rmse": 0.1}),
+        rotation=SimpleNamespace(
+            errors=errors, stats={"rmse": float(np.sqrt(np.mean(errors**2)))}, est_rot_aligned=est
+        ),
+        alignment=SimpleNamespace(kind="se3"),
+        paired=SimpleNamespace(ref_pos=np.column_stack([t, np.zeros(n), np.zeros(n)]), ref_rot=ref_rot),
+        gravity_tilt_deg=None,
+    )
+    turn = truth_frame_turn(ev)
+    conv = {"band_m": 0.2, "t_since_start_s": None}
+    for given in (turn, None):
+        name, _, kwargs = error_plot_job(conv, ev, given)
+        getattr(plots, name)(io.BytesIO(), **kwargs)
+    (turned, plain) = ([line for line in fig.axes[1].get_lines()] for fig in drawn_figures)
+    assert [line.get_label() for line in plain] == ["attitude error angle"]
+    less = turned[1]
+    assert less.get_label() == (
+        f"less the truth frame's constant {turn['angle_deg']:.1f} deg turn (report.md's note): "
+        f"{turn['rotation_rmse_after_deg']:.3g} deg rmse"
+    )
+    assert np.max(errors) > 60.0 and np.max(less.get_ydata()) < 1e-3  # a constant turn leaves nothing

@@ -142,6 +142,27 @@ def test_info_noise_gives_the_magnetometer_level_from_its_finite_samples(logs, t
     assert any(x.strip().startswith(said) for x in res.output.splitlines()), res.output
 
 
+def test_info_noise_says_a_magnetometer_that_holds_its_values_shows_no_noise(logs, tmp_path):
+    """imu_tools' sparkfun_razor.bag: /imu/mag repeats its value for ~20 of its 69 Hz messages (103 distinct values
+    in 2144), so the quintic residuals are zero and `info --noise` printed "magnetometer = 7.939e-22 ... T/sqrt(Hz)".
+    A stream whose every axis holds its values gives no level, and the line says why (the run's words for such a
+    stream); the gyro's level beside it is given as before."""
+    import numpy as np
+
+    sim = simulate("circle", duration=4.0, seed=3)  # the fixture's: magnetometer at 50 Hz
+    held = sim.mag.field[(np.arange(len(sim.mag.field)) // 10) * 10]  # each value held for 10 messages
+    log = dataclasses.replace(sim, odom=_empty(sim.odom), detections=_empty(sim.detections))
+    path = write_log(dataclasses.replace(log, mag=dataclasses.replace(sim.mag, field=held)), tmp_path / "held.mcap")
+    res = invoke("info", "--noise", path)
+    assert res.exit_code == 0, res.output
+    lines = [x.strip() for x in res.output.splitlines()]
+    said = "magnetometer: not estimated (the samples on /imu/mag hold their values (commanded or quantised"
+    assert any(x.startswith(said) for x in lines), res.output
+    assert any(x.startswith("gyro = ") for x in lines), res.output
+    doc = json.loads(invoke("info", "--noise", "--json", path).stdout)["sensors"]["magnetometer"]
+    assert "value" not in doc and "hold their values" in doc["why"], doc
+
+
 def test_run_names_every_missing_role_at_once(logs, tmp_path):
     res = invoke("run", logs["no_odom_det"], "-o", tmp_path / "out")
     assert res.exit_code == 2
@@ -422,3 +443,28 @@ def test_info_noise_labels_its_rates_as_the_median_intervals_not_the_topic_table
     assert lines[gyro + 1].startswith("its messages state /imu/data covariance ("), lines[gyro + 1]
     assert " Hz by the median interval) = " in lines[gyro + 1], lines[gyro + 1]
     assert not re.search(r"\d Hz[);]", "\n".join(lines[gyro : gyro + 2])), lines[gyro : gyro + 2]
+
+
+def test_info_says_what_a_log_of_poses_only_is_good_for(logs, tmp_path):
+    """evo's ROS_example.bag (three PoseStamped trajectories, no velocities): `run` ended its error with "its poses
+    (groundtruth) are a trajectory: `slamobs evaluate LOG:groundtruth EST` ...", but `info`, which a user runs
+    first, listed 30 lines of message types for the inputs and not that. Its readiness now says it, in the same
+    words, naming another pose topic of the log as an EST; a log with velocities does not get the line."""
+    sim = simulate("circle", duration=4.0, seed=3)
+    poses = dataclasses.replace(
+        sim, imu=_empty(sim.imu), odom=_empty(sim.odom), detections=_empty(sim.detections), mag=_empty(sim.mag)
+    )
+    path = write_log(poses, tmp_path / "poses.mcap")
+    info = inspect_log(path)
+    truth = info.roles["truth"]
+    said = f"its poses ({truth}) are a trajectory: `slamobs evaluate {path}:{truth} EST` measures another's error"
+    assert readiness(info).trajectory == said
+    res = invoke("info", path)
+    assert res.exit_code == 0 and f"    {said}" in res.output.splitlines(), res.output
+    run = invoke("run", path, "-o", tmp_path / "out")
+    assert run.exit_code == 2 and said in run.output, run.output  # run's error: the same words
+    summary = next(t for t in info.topics if t.topic == truth)
+    other = dataclasses.replace(summary, topic="/orb_slam/pose")
+    two = dataclasses.replace(info, topics=(*info.topics, other))
+    assert readiness(two).trajectory == f"{said} (EST: e.g. {path}:/orb_slam/pose, another pose topic of this log)"
+    assert readiness(inspect_log(logs["full"])).trajectory == ""

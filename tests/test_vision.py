@@ -765,3 +765,25 @@ def test_missing_camera_file_fails_a_run_without_camera_topics(tmp_path):
     assert res.exit_code == 2 and "Traceback" not in res.output
     assert res.output.strip() == f"error: {tmp_path / 'nonexistent.yaml'}: camera file not found"
     assert not (tmp_path / "out").exists()
+
+
+def test_a_missing_tag_size_names_the_sizes_a_tagslam_file_states(tmp_path):
+    """TagSLAM test_22 run with cameras: [cameras.yaml, camera_poses.yaml, tagslam.yaml] and no tags: section: the
+    error said only "set tags.size", though the tagslam.yaml given beside the calibration states
+    default_tag_size 0.42 (test_21: 0.16, and 0.1 for tags 100-108). It names what the file states; the run still
+    takes no size the config does not give."""
+    streams = _two_cameras()
+    stated = TAGSLAM.replace("     is_static: true\n", "     is_static: true\n     default_tag_size: 0.3\n", 1)
+    (tmp_path / "tagslam.yaml").write_text(stated)
+    with pytest.raises(InputError, match="need the tag size") as err:
+        tag_landmarks(streams, TagOptions(), camera_files=[tmp_path / "tagslam.yaml"], identity_frames=("cam_a",))
+    assert str(err.value).endswith(
+        "the cameras: files say: tagslam.yaml states default_tag_size 0.3 m (body 'world'); 0.2 m for tags 4, 9 "
+        "(set them if they are this log's tags)"
+    )
+    (tmp_path / "tagslam.yaml").write_text(
+        TAGSLAM.replace("size: 0.2, ", "").replace(", size: 0.2", "")
+    )  # no size: the old words
+    with pytest.raises(InputError) as err:
+        tag_landmarks(streams, TagOptions(), camera_files=[tmp_path / "tagslam.yaml"], identity_frames=("cam_a",))
+    assert str(err.value).endswith("set tags.size (or tags.sizes per id) in the config")

@@ -52,7 +52,7 @@ def plot_jobs(
     """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
     return [
         top_view_job(report["landmarks"], ev, landmarks, landmark_truth),
-        error_plot_job(report["convergence"], ev),
+        error_plot_job(report["convergence"], ev, (report.get("ape") or {}).get("truth_frame_turn")),
         bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])),
         *landmark_plot_jobs(report["landmarks"]),
         *segment_plot_jobs(segment_arrays(ev)),
@@ -163,10 +163,18 @@ def top_view_job(
     )
 
 
-def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
-    """The error figure: it needs the convergence section."""
+def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation, turn: dict[str, Any] | None = None):
+    """The error figure: it needs the convergence section, and the APE section's ``truth_frame_turn`` (``turn``):
+    where the truth's body frame is turned against the estimate's by a constant rotation (TagSLAM test_22: 148 deg
+    of rotation APE, 9.7 deg without the turn) the attitude panel draws the error less that turn beside it, as
+    report.md's note gives its rmse."""
+    from slamobs.pipeline.evaluation.sections import truth_body_rotation
+
     t0 = int(ev.estimate.t_ns[0])
     level_t, level = ev.error_level
+    turned = None
+    if turn:
+        turned = (truth_body_rotation(ev)[1], float(turn["angle_deg"]), float(turn["rotation_rmse_after_deg"]))
     return (
         "plot_errors",
         "errors.png",
@@ -181,6 +189,7 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             verdict=convergence_verdict(convergence),
             band_label="this whole-run fit's band" if convergence.get("tail_frame") else "convergence band",
             extent_m=convergence.get("trajectory_extent_m") if convergence.get("lost") else None,
+            attitude_turned=turned,
         ),
     )
 

@@ -189,8 +189,10 @@ def evaluate_tables(
         )
     convergence = ConvergenceSection(options.convergence_threshold_m)
     convergence.process_data(ev)
+    ape = ApeSection()
+    ape.process_data(ev)  # before the error figure: it draws the attitude error less the truth frame's turn
     if figures is not None:
-        figures([error_plot_job(convergence.get_statistic(), ev)])
+        figures([error_plot_job(convergence.get_statistic(), ev, ape.result.get("truth_frame_turn"))])
     time_offset = TimeOffsetSection(options)
     time_offset.unreliable_note(ev)
     uncertainty = UncertaintySection()
@@ -199,7 +201,7 @@ def evaluate_tables(
         figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
     sections = {
-        "ape": ApeSection(),
+        "ape": ape,
         "ape_by_alignment": by_alignment,
         "rpe": rpe,
         "drift": drift,
@@ -210,7 +212,7 @@ def evaluate_tables(
         "convergence": convergence,
         "uncertainty": uncertainty,
     }
-    for section in (sections["ape"], by_alignment, rpe, drift):
+    for section in (by_alignment, rpe, drift):
         section.process_data(ev)
     if aligned is not None:
         aligned(ev)

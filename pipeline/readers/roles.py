@@ -145,6 +145,15 @@ ROLE_ALTERNATIVES: dict[str, str] = {
 }
 
 
+def trajectory_use(path: str, topic: str, others: Iterable[str] = ()) -> str:
+    """What a log of poses without the velocities is good for (evo's example bags), in one wording for ``run``'s
+    error and ``info``'s readiness: its pose topic ``topic`` is a trajectory ``slamobs evaluate`` measures another
+    against; ``others``, the log's other pose topics, name one such estimate."""
+    first = next(iter(others), None)
+    also = f" (EST: e.g. {path}:{first}, another pose topic of this log)" if first else ""
+    return f"its poses ({topic}) are a trajectory: `slamobs evaluate {path}:{topic} EST` measures another's error{also}"
+
+
 def how_to_satisfy(role: str) -> list[str]:
     """Lines saying what would give ``role``: every accepted type, grouped by what it needs, and the config keys
     (types only named, never detected, are marked)."""

@@ -147,6 +147,9 @@ class CameraFiles:
     transforms: list[RigTransform] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     rig_body: str = ""  # the body TagSLAM camera poses refer to (``rig_body`` of a Kalibr/TagSLAM cameras.yaml)
+    #: the tag edges a TagSLAM tagslam.yaml states, in words (``default_tag_size`` per body, the listed tags' own
+    #: ``size`` where another): said when the config gives no tags.size, never taken on their own
+    stated_tag_sizes: list[str] = field(default_factory=list)
 
 
 def distortion_model(name: str, coeffs: np.ndarray, where: str, path: str | Path, topic: str | None = None) -> str:
@@ -401,6 +404,45 @@ def _tagslam_bodies(doc: dict, path: Path, out: CameraFiles) -> None:
             found = True
     if not found:
         out.notes.append(f"{path.name}: no dynamic body with T_body_odom and odom_frame_id (nothing used)")
+    stated = _tagslam_sizes(bodies)
+    if stated:
+        out.stated_tag_sizes.append(f"{path.name} states {stated}")
+
+
+#: at most this many tag ids are named per size where a tagslam.yaml states sizes (the rest counted)
+NAMED_IDS = 12
+
+
+def _number(value: Any) -> float | None:
+    try:
+        size = float(value)
+    except (TypeError, ValueError):
+        return None
+    return size if np.isfinite(size) and size > 0 else None
+
+
+def _tagslam_sizes(bodies: list) -> str:
+    """What a tagslam.yaml's ``bodies`` state about tag edges, in words: each body's ``default_tag_size`` and the
+    listed tags whose own ``size`` is another ("default_tag_size 0.16 m (body 'house'); 0.1 m for tags 100, 101");
+    "" when they state none."""
+    parts, other = [], {}
+    for entry in bodies:
+        for name, body in (entry or {}).items():
+            if not isinstance(body, dict):
+                continue
+            default = _number(body.get("default_tag_size"))
+            if default is not None:
+                parts.append(f"default_tag_size {default:g} m (body '{name}')")
+            tags = body.get("tags")
+            for tag in tags if isinstance(tags, list) else []:
+                size = _number(tag.get("size")) if isinstance(tag, dict) else None
+                if size is not None and size != default and isinstance(tag.get("id"), int):
+                    other.setdefault(size, []).append(int(tag["id"]))
+    for size, ids in sorted(other.items()):
+        named = ", ".join(str(i) for i in sorted(ids)[:NAMED_IDS])
+        more = f" and {len(ids) - NAMED_IDS} more" if len(ids) > NAMED_IDS else ""
+        parts.append(f"{size:g} m for tag{'s' if len(ids) > 1 else ''} {named}{more}")
+    return "; ".join(parts)
 
 
 def read_camera_files(paths: list[str | Path]) -> CameraFiles:

@@ -23,6 +23,7 @@ table.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -142,13 +143,16 @@ def _rig_transforms(
     return out
 
 
-def _sizes(ids: np.ndarray, options: TagOptions, topic: str, path: str) -> np.ndarray:
+def _sizes(ids: np.ndarray, options: TagOptions, topic: str, path: str, stated: Sequence[str] = ()) -> np.ndarray:
+    """Each detection's tag edge (m; NaN for an id without one); an InputError when no id has one, naming what
+    the ``cameras:`` files state (``stated``: a tagslam.yaml's sizes, :attr:`.CameraFiles.stated_tag_sizes`)."""
     sizes = np.array([options.sizes.get(int(i), options.size or np.nan) for i in ids], dtype=np.float64)
     if ids.size and np.isnan(sizes).all() and options.size is None:
+        said = f"; the cameras: files say: {'; '.join(stated)} (set them if they are this log's tags)" if stated else ""
         raise InputError(
             path,
             "tag corners need the tag size (edge of the black square, m): set tags.size "
-            "(or tags.sizes per id) in the config",
+            f"(or tags.sizes per id) in the config{said}",
             topic,
         )
     return sizes
@@ -202,7 +206,7 @@ def tag_landmarks(
     ignored = unsized = 0
     for c, s in enumerate(kept):
         model = models[s.topic]
-        row, n_ignored, n_unsized, fit = _camera_poses(c, s, model, options, path)
+        row, n_ignored, n_unsized, fit = _camera_poses(c, s, model, options, path, files.stated_tag_sizes)
         rows.append(row)
         reject += np.bincount(row[4].status, minlength=len(REASONS))  # row[4]: the tag poses
         ignored, unsized = ignored + n_ignored, unsized + n_unsized
@@ -397,7 +401,9 @@ def _no_extrinsics(corner_streams: list[CornerStream], body: str, tf) -> str:
     )
 
 
-def _camera_poses(c: int, s: CornerStream, model: CameraModel, options: TagOptions, path: str) -> tuple:
+def _camera_poses(
+    c: int, s: CornerStream, model: CameraModel, options: TagOptions, path: str, stated: Sequence[str] = ()
+) -> tuple:
     """Camera ``c``'s row for ``_table``/``_merge`` (its tag poses), the counts of ignored and unsized
     detections, which are left out before solving, and its distortion check (:func:`.distortion.distortion_fit`,
     on the detections kept; None with too few pairs of tags in one image)."""
@@ -407,7 +413,7 @@ def _camera_poses(c: int, s: CornerStream, model: CameraModel, options: TagOptio
         drop = np.isin(s.ids, list(options.ignore))
         ignored = int(np.count_nonzero(drop))
         keep &= ~drop
-    sizes = _sizes(s.ids, options, s.topic, path)
+    sizes = _sizes(s.ids, options, s.topic, path, stated)
     no_size = ~np.isfinite(sizes) & keep
     unsized = int(np.count_nonzero(no_size))
     keep &= ~no_size
