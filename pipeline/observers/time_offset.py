@@ -110,6 +110,15 @@ def _in_blocks(t: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray,
     return a[same], b[same]
 
 
+def _reach(stream) -> float:
+    """The largest shift searched: ``MAX_OFFSET_S`` beyond the seconds the alignment moved the IMU's stamps by onto
+    the odometry's clock (``gyro_moved_s``): detections stamped on the IMU's clock need that move too, and a generated
+    hand-held rig whose odometry's clock is 0.5 s off had its IMU moved +0.500 s and the detections' +0.503 s held
+    back at the search's edge (riekf lost at 14.6 m, its warnings blaming the detections' scale; docs/benchmarks.md,
+    "Logs nobody has run yet, round 7")."""
+    return MAX_OFFSET_S + abs(float(getattr(stream, "gyro_moved_s", 0.0) or 0.0))
+
+
 def _read_only(stream, t: np.ndarray, a: np.ndarray, b: np.ndarray):
     """The stream with the velocity samples the pairs ``(a, b)`` read at any shift only (``t``: each detection's
     time; from the sample before a margin ahead of a pair's first detection to the one after the margin past its
@@ -121,7 +130,7 @@ def _read_only(stream, t: np.ndarray, a: np.ndarray, b: np.ndarray):
     if not a.shape[0]:
         return stream
     t_s = stream.seconds(stream.vel_t_ns)
-    n, margin = t_s.shape[0], MAX_OFFSET_S + 2 * COARSE_S + VELOCITY_LAG_MAX_S
+    n, margin = t_s.shape[0], _reach(stream) + 2 * COARSE_S + VELOCITY_LAG_MAX_S
     lo = np.maximum(np.searchsorted(t_s, t[a] - margin, "right") - 1, 0)
     hi = np.minimum(np.searchsorted(t_s, t[b] + margin, "right") + 1, n)
     inside = np.zeros(n + 1, np.int64)
@@ -421,7 +430,8 @@ def _search(c: Consistency) -> tuple[float, float, float, list[float]]:
     """The shift of least cost on the grid (coarse, then fine around the best), its standard error from the
     curvature there, the cost at zero over the cost there, and the span of the coarse grid around it whose cost
     is within ``MIN_GAIN`` times that cost (:func:`_indistinct`)."""
-    coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
+    reach = _reach(c.stream)
+    coarse = np.arange(-reach, reach + COARSE_S / 2, COARSE_S)
     coarse_costs = c.costs(coarse)
     best = int(np.argmin(coarse_costs))
     fine = float(coarse[best]) + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
@@ -1055,8 +1065,8 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
     seed=9957, that lag, 0.125 s, read the lateral velocity as 10.9x, 1.31 at the search's 0.124 s), else zero."""
     shift, sigma, gain, span = _search(c)
     why, lagged, lag = None, False, hold_lag(c.stream)
-    if abs(shift) >= MAX_OFFSET_S - COARSE_S:
-        why = f"the best shift is at the edge of the search (±{MAX_OFFSET_S} s)"
+    if abs(shift) >= (reach := _reach(c.stream)) - COARSE_S:
+        why = f"the best shift is at the edge of the search (±{reach:g} s)"
     elif not abs(shift) > MIN_SIGMAS * sigma:
         why = f"within {MIN_SIGMAS:g} standard errors of zero"
     elif abs(shift) < MIN_APPLY_S:
