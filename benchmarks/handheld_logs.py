@@ -83,7 +83,7 @@ class Case:
     twist_in_odom: bool = False  # the odometry's linear velocity written in its odom frame, not the body's
     gyro_deg: bool = False  # the gyro written in deg/s
     zero_stamps: str = ""  # this stream's header stamps all 0 (imu, odom or detections)
-    duplicate: str = ""  # this stream's messages each written twice (imu or odom)
+    duplicate: str = ""  # this stream's messages each written twice (imu, odom or detections)
     shuffle_s: float = 0.0  # the IMU's and odometry's record times moved by uniform +-shuffle_s (stamps kept)
     # round 7: a rig's mounting, clocks and transport, and scenes at their extremes
     imu_rpy_deg: tuple[float, float, float] | None = None  # the IMU's mounting (its tf_static saying so)
