@@ -10,13 +10,17 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py [--cache DIR] [--seeds 3345 3348] [--no-true]
     .venv/bin/python benchmarks/handheld_logs.py --set round5 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round6 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
 3-10x above the samples (docs/benchmarks.md, "Logs nobody has run yet, round 5"). ``--set round6``: session 34's
 (``ROUND6``): a tag moved, two tags on one id, wild detections, standing still, pure rotation, a fast car, truth far
 away, the twist in the odometry frame, the gyro in deg/s, unset stamps, duplicated and reordered messages, 20 min
-(docs/benchmarks.md, "Logs nobody has run yet, round 6").
+(docs/benchmarks.md, "Logs nobody has run yet, round 6"). ``--set round7``: session 35's (``ROUND7``): an IMU upside
+down, a twist turned 180 deg or 5 % long, an odometry clock 0.5 s off, a saturating gyro, a log ending blind, a
+landmark seen once, 2 or 500 landmarks, duplicated, bursty or reordered detections, unset IMU stamps, a late
+/tf_static, a wrong stated camera extrinsic (docs/benchmarks.md, "Logs nobody has run yet, round 7").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -36,8 +40,10 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.api import run_log
+from slamobs.pipeline.lie import quats_to_rots, rots_to_quats
 from slamobs.pipeline.noise import DEFAULTS
 from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
+from slamobs.pipeline.simulate.sensors import FRAME_CAMERA
 from slamobs.pipeline.simulate.scenarios import Trajectory, customize, flight_trajectory, get_scenario, handheld, rot_z
 
 SUFFIX = {"mcap": ".mcap", "bag": ".bag", "ros2": ""}
@@ -77,8 +83,20 @@ class Case:
     twist_in_odom: bool = False  # the odometry's linear velocity written in its odom frame, not the body's
     gyro_deg: bool = False  # the gyro written in deg/s
     zero_stamps: str = ""  # this stream's header stamps all 0 (imu, odom or detections)
-    duplicate: str = ""  # this stream's messages each written twice (imu or odom)
+    duplicate: str = ""  # this stream's messages each written twice (imu, odom or detections)
     shuffle_s: float = 0.0  # the IMU's and odometry's record times moved by uniform +-shuffle_s (stamps kept)
+    # round 7: a rig's mounting, clocks and transport, and scenes at their extremes
+    imu_rpy_deg: tuple[float, float, float] | None = None  # the IMU's mounting (its tf_static saying so)
+    twist_yaw_deg: float = 0.0  # the twist written in a frame turned this much about z (its frame id unchanged)
+    velocity_scale: float = 1.0  # the twist's linear velocity times this (a wheel radius or scale error)
+    odom_clock_s: float = 0.0  # added to the odometry's header stamps (its clock off the IMU's)
+    gyro_clip: float = 0.0  # the gyro saturating at this many rad/s per axis
+    once: int = 0  # this many landmarks each kept in one detection only
+    keep_ids: int = 0  # only the first this many landmarks (by id) detected
+    bursty_s: float = 0.0  # every record time moved up to the next multiple of bursty_s (transport in bursts)
+    det_shuffle_s: float = 0.0  # the detections' record times moved by uniform +-det_shuffle_s
+    tf_late_s: float = 0.0  # /tf_static and the truth recorded this long after the first messages
+    tf_yaw_deg: float = 0.0  # the camera's stated extrinsic turned this much about the body's z (the camera not)
 
 
 CASES = (
@@ -260,7 +278,32 @@ ROUND6 = (
     Case(3669, "handheld", 90, "records out of order +-30 ms", shuffle_s=0.03, **R6),
     Case(3670, "loop", 180, "loop, 30 s still, 3 % wild", stops=((0.0, 30.0),), wild=0.03, **R6),
 )
-SETS = {"round4": CASES, "round5": ROUND5, "round6": ROUND6}
+#: round 7 (session 35, docs/benchmarks.md "Logs nobody has run yet, round 7"): an IMU mounted upside down, a twist
+#: turned 180 deg or 5 % long, odometry on a clock 0.5 s off, a saturating gyro, a log ending blind, a landmark seen
+#: once, 2 or 500 landmarks, duplicated, bursty or reordered detections, unset IMU stamps, a late /tf_static, a wrong
+#: stated camera extrinsic, a 10-minute loop blind for minutes
+ROUND7 = (
+    Case(3840, "loop", 600, "loop 10 min, blind 150 s and 100 s", gaps=((150, 300), (400, 500)), **R6),
+    Case(3841, "handheld", 90, "IMU upside down (tf says so)", imu_rpy_deg=(180.0, 0.0, 0.0), **R6),
+    Case(3842, "ground", 180, "ground robot, twist turned 180 deg", "bag", twist_yaw_deg=180.0, **R6),
+    Case(3843, "handheld", 90, "twist turned 180 deg", twist_yaw_deg=180.0, **R6),
+    Case(3844, "handheld", 90, "odometry clock +0.5 s", "ros2", odom_clock_s=0.5, **R6),
+    Case(3845, "flight", 90, "flight, odometry clock -0.5 s", odom_clock_s=-0.5, **R6),
+    Case(3846, "handheld", 90, "gyro clipped at 1 rad/s", wobble=0.6, gyro_clip=1.0, **R6),
+    Case(3847, "flight", 90, "flight, velocity x1.05", "bag", velocity_scale=1.05, **R6),
+    Case(3848, "handheld", 90, "ends blind (70-90 s)", gaps=((70.0, 90.0),), **R6),
+    Case(3849, "handheld", 90, "3 landmarks seen once each", once=3, **R6),
+    Case(3850, "handheld", 90, "2 landmarks", "ros2", keep_ids=2, **R6),
+    Case(3851, "loop", 180, "loop, 500 landmarks", landmarks=500, **R6),
+    Case(3852, "handheld", 90, "detection messages twice", "bag", duplicate="detections", **R6),
+    Case(3853, "handheld", 90, "records in 0.5 s bursts", bursty_s=0.5, **R6),
+    Case(3854, "handheld", 90, "IMU header stamps 0", zero_stamps="imu", **R6),
+    Case(3855, "handheld", 90, "/tf_static 3 s late", "ros2", tf_late_s=3.0, **R6),
+    Case(3856, "handheld", 90, "camera extrinsic stated 5 deg off", tf_yaw_deg=5.0, **R6),
+    Case(3857, "flight", 90, "flight, camera extrinsic stated 10 deg off", tf_yaw_deg=10.0, **R6),
+    Case(3858, "handheld", 90, "detection records +-0.3 s out of order", det_shuffle_s=0.3, **R6),
+)
+SETS = {"round4": CASES, "round5": ROUND5, "round6": ROUND6, "round7": ROUND7}
 
 
 def spin_trajectory(t):
@@ -318,7 +361,7 @@ def scenario(case: Case):
         sc = scaled(sc, case.scale)
     if case.stops:
         sc = replace(sc, trajectory=with_stops(sc.trajectory, case.stops))
-    return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None)
+    return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None, imu_rpy_deg=case.imu_rpy_deg)
 
 
 def _rows(d, keep):
@@ -354,7 +397,7 @@ def misdrawn(sim, case: Case, sc):
     if case.gyro_deg:
         imu = replace(imu, gyro=np.rad2deg(imu.gyro))
     streams = {"imu": imu, "odom": odom, "detections": det}
-    if case.duplicate:
+    if case.duplicate in ("imu", "odom"):  # the detections' in misdrawn7 (frames of many rows)
         d = streams[case.duplicate]
         streams[case.duplicate] = _rows(d, np.repeat(np.arange(len(d.t_ns)), 2))
     if case.shuffle_s:
@@ -372,6 +415,69 @@ def misdrawn(sim, case: Case, sc):
         truth["landmarks"] = {k: list(np.asarray(p) + off) for k, p in truth["landmarks"].items()}
         truth["odom_origin"]["translation"] = list(np.asarray(truth["odom_origin"]["translation"]) + off)
         sim = replace(sim, truth=truth, mocap=replace(sim.mocap, position=sim.mocap.position + off))
+    return sim
+
+
+def _frames(det, keep):
+    """The detection stream ``det`` at frames ``keep`` (indices, may repeat) or with detections ``keep`` (a mask
+    over its detections, frames left empty kept)."""
+    if keep.dtype == bool:
+        frame = np.repeat(np.arange(len(det.t_ns)), np.diff(det.offsets))
+        offsets = np.r_[0, np.cumsum(np.bincount(frame[keep], minlength=len(det.t_ns)))]
+        rows = {f: getattr(det, f)[keep] for f in ("ids", "xyz", "quat_xyzw", "image_error", "object_error", "area")}
+        return replace(det, offsets=offsets, **rows)
+    start, stop = det.offsets[keep], det.offsets[keep + 1]
+    idx = np.concatenate([np.arange(a, b) for a, b in zip(start, stop)]).astype(np.int64)
+    rows = {f: getattr(det, f)[idx] for f in ("ids", "xyz", "quat_xyzw", "image_error", "object_error", "area")}
+    offsets = np.r_[0, np.cumsum(stop - start)]
+    return replace(det, t_ns=det.t_ns[keep], rec_ns=det.rec_ns[keep], offsets=offsets, **rows)
+
+
+def misdrawn7(sim, case: Case):
+    """Round 7's changes to the drawn log (from a generator of their own): the twist turned or scaled, the
+    odometry's clock off, a saturating gyro, landmarks seen once or only two, duplicated or reordered detections,
+    records in bursts, a late /tf_static, a wrong stated camera extrinsic."""
+    rng = np.random.default_rng(case.seed + 13)
+    det, imu, odom = sim.detections, sim.imu, sim.odom
+    if case.twist_yaw_deg or case.velocity_scale != 1.0:
+        turn = rot_z(np.array([np.deg2rad(case.twist_yaw_deg)]))[0]
+        odom = replace(odom, linear=case.velocity_scale * odom.linear @ turn.T)
+    if case.odom_clock_s:
+        odom = replace(odom, t_ns=odom.t_ns + int(round(case.odom_clock_s * 1e9)))
+    if case.gyro_clip:
+        imu = replace(imu, gyro=np.clip(imu.gyro, -case.gyro_clip, case.gyro_clip))
+    if case.once:
+        first = {}
+        for k, i in enumerate(det.ids):
+            first.setdefault(int(i), k)
+        chosen = sorted(first)[:: max(1, len(first) // case.once)][: case.once]
+        keep = ~np.isin(det.ids, chosen)
+        keep[[first[i] for i in chosen]] = True
+        det = _frames(det, keep)
+    if case.keep_ids:
+        det = _frames(det, np.isin(det.ids, np.unique(det.ids)[: case.keep_ids]))
+    if case.duplicate == "detections":
+        det = _frames(det, np.repeat(np.arange(len(det.t_ns)), 2))
+    if case.det_shuffle_s:
+        move = rng.uniform(-case.det_shuffle_s, case.det_shuffle_s, len(det.rec_ns))
+        det = replace(det, rec_ns=np.maximum(det.rec_ns + np.round(move * 1e9).astype(np.int64), det.t_ns))
+    streams = {"imu": imu, "odom": odom, "detections": det, "mag": sim.mag, "mocap": sim.mocap}
+    if case.bursty_s:
+        step = int(round(case.bursty_s * 1e9))
+        for name, d in streams.items():
+            streams[name] = replace(d, rec_ns=sim.start_ns + -(-(d.rec_ns - sim.start_ns) // step) * step)
+    sim = replace(sim, **streams)
+    if case.tf_yaw_deg:
+        turn = rot_z(np.array([np.deg2rad(case.tf_yaw_deg)]))[0]
+        tfs = []
+        for tf in sim.static_tf:
+            if tf.child == FRAME_CAMERA:
+                r = turn @ quats_to_rots(tf.quat_xyzw[None])[0]
+                tf = replace(tf, quat_xyzw=rots_to_quats(np.ascontiguousarray(r[None]))[0])
+            tfs.append(tf)
+        sim = replace(sim, static_tf=tfs)
+    if case.tf_late_s:
+        sim = replace(sim, start_ns=sim.start_ns + int(round(case.tf_late_s * 1e9)))
     return sim
 
 
@@ -415,7 +521,7 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
     kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
     sc = scenario(case)
     sim = simulate(sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, **kw)
-    sim = misdrawn(perturb(sim, case), case, sc)
+    sim = misdrawn7(misdrawn(perturb(sim, case), case, sc), case)
     stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
     if case.truncate:

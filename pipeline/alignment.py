@@ -217,6 +217,50 @@ def _odometry_stuck(lv: Vec3Stream, twist: Vec3Stream, time_source: str, t_om, o
     ]
 
 
+#: A gyro saturating (its range exceeded on fast turns) holds its largest reading: the samples at the largest absolute
+#: value of one axis, in stretches of ``SATURATED_MIN_RUN`` or more in a row, ``SATURATED_MIN_SHARE`` of the samples
+#: or more, are named (a noisy gyro reads its largest value once). A generated hand-held rig whose gyro clips at
+#: 1 rad/s (its yaw rate to 2.5 rad/s): riekf lost (APE 7.9 m), fast-adaptation 0.50 m with a verdict "yes", batch
+#: 0.040 m with its gyro level x9, no word (docs/benchmarks.md, "Logs nobody has run yet, round 7").
+SATURATED_MIN_RUN = 3
+SATURATED_MIN_SHARE = 0.001
+
+
+def gyro_saturated(omega: np.ndarray, topic: str) -> list[str]:
+    """The warning of a gyro whose axes hold their largest absolute reading in stretches (``SATURATED_MIN_RUN``):
+    ``omega`` (N, 3) as read, one row per message."""
+    found = []
+    for k, axis in enumerate("xyz"):
+        col = omega[:, k]
+        top = max(float(col.max(initial=-np.inf)), -float(col.min(initial=np.inf)))
+        if not np.isfinite(top):  # a NaN read (the run drops it): the finite samples'
+            col = col[np.isfinite(col)]
+            top = max(float(col.max(initial=0.0)), -float(col.min(initial=0.0)))
+        # a noisy gyro's largest reading comes once: the stretches are looked for only where it comes often (the
+        # hour's 720,000 samples: 4.5 CPU ms, the counts' strided passes)
+        n, floor = col.shape[0], max(SATURATED_MIN_RUN, SATURATED_MIN_SHARE * col.shape[0])
+        if top <= 0.0 or np.count_nonzero(col == top) + np.count_nonzero(col == -top) < floor:
+            continue
+        at = np.abs(col) == top
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], at.view(np.int8), [0]])))
+        runs = edges[1::2] - edges[::2]
+        held = int(runs[runs >= SATURATED_MIN_RUN].sum())
+        if held >= SATURATED_MIN_SHARE * n:
+            found.append((axis, top, held, int(np.count_nonzero(runs >= SATURATED_MIN_RUN)), n))
+    if not found:
+        return []
+    said = "; ".join(
+        f"about {axis} ±{top:.4g} rad/s on {held} samples ({100.0 * held / n:.2g} %) in "
+        f"{plural(k, 'stretch', 'stretches')}"
+        for axis, top, held, k, n in found
+    )
+    return [
+        f"warning: {topic}: its angular velocity holds its largest reading in stretches ({said}): a gyro "
+        "saturating, its range exceeded on fast turns? the turns there read too slow and every estimate turns too "
+        "little: set the gyro's range higher at its driver"
+    ]
+
+
 #: One landmark id at several places (a misdecoded tag id, tags of one id in view in turn): two detections of one id
 #: at most ``GHOST_PAIR_S`` apart, the first moved by the velocities between them, should land on the second. An id
 #: with ``GHOST_MIN_PAIRS`` such pairs whose median misfit is ``GHOST_RATIO`` times the run's median and over
@@ -1087,6 +1131,8 @@ def align(
     if twist is not None and twist.topic != om.topic:
         gyro_turn = _odometry_twist_checks(frame, warn, twist, om, lv, t_om, omega)
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
+    if two_topics:  # a gyro of its own (an odometry's angular velocity is a computed one, often held at set values)
+        frame.notes.extend(gyro_saturated(om.xyz, om.topic))
     topics = _role_topics(om, lv, det)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.

@@ -1484,3 +1484,24 @@ def test_a_hand_held_rig_with_imu_and_twist_at_4_hz_names_no_lateral_scale_and_a
     assert said(1.0) == []
     (named,) = said(3.6)  # the velocity in km/h: x named as such, y not named with it
     assert "along x 0.2" in named and "in km/h?" in named and "along y" not in named, named
+
+
+@pytest.mark.parametrize("scenario", ["handheld", "ground"])
+def test_a_twist_turned_from_the_body_is_named(scenario):
+    # generated logs whose odometry's twist is turned 180 deg about z (a robot driving "backwards"; docs/benchmarks.md,
+    # "Logs nobody has run yet, round 7"): on the hand-held rig the pairs named a twist in a world frame (7.55x,
+    # riekf APE 2.6 m), on the ground robot only the camera's extrinsic, which on planar motion fits alike
+    from slamobs.pipeline.observers import time_offset
+    from slamobs.pipeline.simulate.scenarios import handheld, rot_z
+
+    sim = simulate(handheld() if scenario == "handheld" else scenario, seed=2, duration=30.0)
+    stream = align(expected_streams(sim))
+    assert [n for n in time_offset.note("riekf", time_offset.estimate(stream)) if "turned" in n] == []
+    turn = rot_z(np.array([np.pi]))[0]
+    record = time_offset.estimate(replace(stream, velocity=stream.velocity @ turn.T))
+    said = [n for n in time_offset.note("riekf", record) if "turned" in n]
+    assert len(said) == 1 and "twist" in said[0], said
+    assert not any("world frame" in n for n in time_offset.note("riekf", record)), said
+    if scenario == "handheld":  # the twist's turn alone, its axis named; the camera not
+        assert "with its twist turned by 180 deg about the body's z" in said[0], said
+        assert "camera" not in said[0] and record["camera_turned"] is False, said

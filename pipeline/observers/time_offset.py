@@ -110,6 +110,15 @@ def _in_blocks(t: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray,
     return a[same], b[same]
 
 
+def _reach(stream) -> float:
+    """The largest shift searched: ``MAX_OFFSET_S`` beyond the seconds the alignment moved the IMU's stamps by onto
+    the odometry's clock (``gyro_moved_s``): detections stamped on the IMU's clock need that move too, and a generated
+    hand-held rig whose odometry's clock is 0.5 s off had its IMU moved +0.500 s and the detections' +0.503 s held
+    back at the search's edge (riekf lost at 14.6 m, its warnings blaming the detections' scale; docs/benchmarks.md,
+    "Logs nobody has run yet, round 7")."""
+    return MAX_OFFSET_S + abs(float(getattr(stream, "gyro_moved_s", 0.0) or 0.0))
+
+
 def _read_only(stream, t: np.ndarray, a: np.ndarray, b: np.ndarray):
     """The stream with the velocity samples the pairs ``(a, b)`` read at any shift only (``t``: each detection's
     time; from the sample before a margin ahead of a pair's first detection to the one after the margin past its
@@ -121,7 +130,7 @@ def _read_only(stream, t: np.ndarray, a: np.ndarray, b: np.ndarray):
     if not a.shape[0]:
         return stream
     t_s = stream.seconds(stream.vel_t_ns)
-    n, margin = t_s.shape[0], MAX_OFFSET_S + 2 * COARSE_S + VELOCITY_LAG_MAX_S
+    n, margin = t_s.shape[0], _reach(stream) + 2 * COARSE_S + VELOCITY_LAG_MAX_S
     lo = np.maximum(np.searchsorted(t_s, t[a] - margin, "right") - 1, 0)
     hi = np.minimum(np.searchsorted(t_s, t[b] + margin, "right") + 1, n)
     inside = np.zeros(n + 1, np.int64)
@@ -421,7 +430,8 @@ def _search(c: Consistency) -> tuple[float, float, float, list[float]]:
     """The shift of least cost on the grid (coarse, then fine around the best), its standard error from the
     curvature there, the cost at zero over the cost there, and the span of the coarse grid around it whose cost
     is within ``MIN_GAIN`` times that cost (:func:`_indistinct`)."""
-    coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
+    reach = _reach(c.stream)
+    coarse = np.arange(-reach, reach + COARSE_S / 2, COARSE_S)
     coarse_costs = c.costs(coarse)
     best = int(np.argmin(coarse_costs))
     fine = float(coarse[best]) + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
@@ -632,6 +642,45 @@ def extrinsic_turn(c: Consistency) -> dict:
         if gain > best:
             best, turn = gain, q
     return {"gain": best, "rotvec_deg": np.round(np.degrees(so3_log(turn)), 3).tolist()}
+
+
+#: The odometry's twist turned by one of the body's axis turns (``_axis_turns``; a robot's twist given in a frame
+#: turned from base_link, e.g. 180 deg about z: a robot driving "backwards") is named when the pairs fit it
+#: ``EXTRINSIC_TURN_GAIN`` times better turned than as read, and better than the camera turned (``extrinsic_turn``)
+#: and the twist read as a world frame's (``world_twist``) by more than ``TWIST_TURN_TIE``; within it of the camera's
+#: turn both are named (on planar motion a camera turned about the vertical and a twist turned the other way fit
+#: alike). Generated, the twist turned 180 deg about z: a hand-held rig 26.8x (the world frame's 7.55x, named alone
+#: before), a 180 s ground robot 19.2x against the camera's 14.9x (both named), a 30 s one 134x against 52x (the
+#: 1.5 a margin, not tuned; docs/benchmarks.md, "Logs nobody has run yet, round 7").
+TWIST_TURN_TIE = 1.5
+
+
+def twist_turn(c: Consistency) -> dict:
+    """The axis turn of the odometry's twist (``_axis_turns``) that fits the pairs best, as a rotation vector in the
+    body frame (deg) taking the velocity as read into the body's, and how many times better it fits than as read
+    (no bias fitted, as :func:`extrinsic_turn`): each turn dead-reckoned again (23 over the samples the pairs read)."""
+    base = _trimmed_cost(c.residuals(0.0)[0])
+    s = c.stream
+    omega, vel = s.omega - c.bias[:3], s.velocity - c.bias[3:]
+    best, turn = 0.0, None
+    for q in _axis_turns():
+        turned = vel @ q.T
+        t, steps = _sample_steps(s, omega, turned)
+        poses = (t, *integrate_body_twists(np.eye(3), np.zeros(3), *steps), omega, turned)
+        gain = base / max(_trimmed_cost(c.residuals(0.0, poses)[0]), 1e-300)
+        if gain > best:
+            best, turn = gain, q
+    return {"gain": best, "rotvec_deg": np.round(np.degrees(so3_log(turn)), 3).tolist()}
+
+
+def _twist_turn_gain(offset: dict) -> float:
+    """The gain of :func:`twist_turn` where it names the twist (over ``EXTRINSIC_TURN_GAIN``, no gyro misread named,
+    not under the world frame's by ``TWIST_TURN_TIE``), else 0."""
+    gain = (offset.get("twist_turn") or {"gain": 0.0})["gain"]
+    world = (offset.get("world_twist") or {"gain": 0.0})["gain"]
+    if gain < EXTRINSIC_TURN_GAIN or gain * TWIST_TURN_TIE < world:
+        return 0.0
+    return 0.0 if _best_misread(offset.get("gyro_misreads") or {}) else gain
 
 
 def _turn_phrase(rotvec_deg) -> str:
@@ -1016,8 +1065,8 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
     seed=9957, that lag, 0.125 s, read the lateral velocity as 10.9x, 1.31 at the search's 0.124 s), else zero."""
     shift, sigma, gain, span = _search(c)
     why, lagged, lag = None, False, hold_lag(c.stream)
-    if abs(shift) >= MAX_OFFSET_S - COARSE_S:
-        why = f"the best shift is at the edge of the search (±{MAX_OFFSET_S} s)"
+    if abs(shift) >= (reach := _reach(c.stream)) - COARSE_S:
+        why = f"the best shift is at the edge of the search (±{reach:g} s)"
     elif not abs(shift) > MIN_SIGMAS * sigma:
         why = f"within {MIN_SIGMAS:g} standard errors of zero"
     elif abs(shift) < MIN_APPLY_S:
@@ -1118,6 +1167,13 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
         out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
+    # only where a turned or misread velocity is in question (a clean log's run pays nothing for it)
+    if (
+        out["extrinsic_turn"]["gain"] >= EXTRINSIC_TURN_GAIN
+        or out["world_twist"]["gain"] >= WORLD_TWIST_GAIN
+        or velocity_misread(out["velocity_scale"])
+    ):
+        out["twist_turn"] = twist_turn(c)
     out["lever_arm"] = lever_arm(c, at, fit)
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, applied)
@@ -1233,6 +1289,8 @@ def camera_turned(offset: dict | None) -> bool:
     if not offset:
         return False
     turn = offset.get("extrinsic_turn") or {"gain": 0.0}
+    if turn["gain"] * TWIST_TURN_TIE < _twist_turn_gain(offset):  # the twist turned fits clearly better
+        return False
     return turn["gain"] >= EXTRINSIC_TURN_GAIN and not _best_misread(offset.get("gyro_misreads") or {})
 
 
@@ -1265,16 +1323,35 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     # only where the gyro reads right (a gyro of the wrong sign, or mirrored detections, fit as well turned by 180
     # deg about a horizontal axis: 57-138x on generated figure 8s and ground robots; in deg/s the detections fit
     # turned 2.3-7.1x better), and before the velocity's scale, which a turned camera also upsets
+    twist = _twist_turn_gain(offset)
     if camera_turned(offset):  # found holds the gyro's misread at most: none named here
+        alike = (
+            f", or the odometry's twist given in a frame turned from the body's (a robot driving backwards: the pairs "
+            f"fit its twist turned {twist:.3g}x better; on this motion the two fit alike)"
+            if twist
+            else ""
+        )
         found.append(
             (
                 f"the detections fit the odometry {turn['gain']:.3g}x better turned {_turn_phrase(turn['rotvec_deg'])} "
                 f"({offset['pairs']} detection pairs, trimmed mean squared residual): {CAMERA_ADVICE} "
-                "(turned about one of its axes, or given as the inverse transform)",
+                f"(turned about one of its axes, or given as the inverse transform){alike}",
                 "it",
-                ("detections", "camera"),
+                ("detections", "camera", "odometry") if twist else ("detections", "camera"),
             )
         )
+    elif twist and not found:  # the turn is the twist's alone: the world frame's and the velocity's scale follow
+        twisted = _turn_phrase(offset["twist_turn"]["rotvec_deg"])
+        return [
+            (
+                f"the detections fit the odometry {twist:.3g}x better with its twist turned {twisted} "
+                f"({offset['pairs']} detection pairs, trimmed mean squared residual): its twist is in a frame turned "
+                "from the body's (nav_msgs/Odometry gives it in child_frame_id; a robot driving backwards, or the "
+                "twist of another link): check the odometry's frame and axes at its driver"
+                + stream_topics(topics, "odometry"),
+                "it",
+            )
+        ]
     world = (offset.get("world_twist") or {"gain": 0.0})["gain"]
     if world >= WORLD_TWIST_GAIN and not found:  # the dead-reckoned heading is the gyro's: only where it reads right
         # the velocity's scale on each axis is then a consequence: not said besides
