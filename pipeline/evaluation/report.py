@@ -188,7 +188,7 @@ def evaluate_tables(
             ]
         )
     convergence = ConvergenceSection(options.convergence_threshold_m)
-    convergence.process_data(ev)
+    convergence.process_data(ev, _scene(landmarks, landmark_truth, ev))
     if figures is not None:
         figures([error_plot_job(convergence.get_statistic(), ev)])
     time_offset = TimeOffsetSection(options)
@@ -242,6 +242,17 @@ def _landmark_section(landmarks: Table | None, landmark_truth, ev: TrajectoryEva
     gauge = None if ev.gauge is None else ev.gauge[1:]  # the frame the map's Σ is defined in
     landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]), gauge)
     return landmark
+
+
+def _scene(landmarks: Table | None, landmark_truth, ev: TrajectoryEvaluation) -> np.ndarray | None:
+    """The landmarks (M, 3) in the truth frame, the scale of a truth that does not translate
+    (:func:`.sections.scene_extent`): the truth's map, else the estimate's through the trajectory's alignment; None
+    without either."""
+    if landmark_truth:
+        return np.array([np.asarray(p, dtype=np.float64) for p in landmark_truth.values()])
+    if landmarks is None or not n_rows(landmarks):
+        return None
+    return ev.alignment.positions(np.column_stack([column(landmarks, c, np.float64) for c in ("x", "y", "z")]))
 
 
 def _report_notes(invalid: int, sections: dict) -> list[str]:
