@@ -85,11 +85,11 @@ def test_a_rig_turning_in_place_is_judged_lost_or_coarse_against_its_scene_not_i
     validate_report(rep)
     conv = rep["convergence"]
     assert conv["trajectory_extent_m"] < 0.01 < 0.1 < conv["steady_level_m"]  # above the truth's extent
+    assert not conv["lost"] and not conv["coarse"] and conv["t_since_start_s"] is not None
+    assert not convergence_line(conv).startswith(("no:", "coarse"))
     assert conv["scene_extent_m"] == pytest.approx(
         np.sqrt(np.mean([np.sum((p - truth.position.mean(axis=0)) ** 2) for p in lm_truth.values()])), rel=1e-3
     )
-    assert not conv["lost"] and not conv["coarse"] and conv["t_since_start_s"] is not None
-    assert not convergence_line(conv).startswith(("no:", "coarse"))
     est = estimate_of(truth)  # the control: 10 m off at first, settling 10 m... off along a sway the truth lacks
     est["x"] = est["x"] + 10.0 * np.sin(np.arange(len(est)) / 50.0)
     rep = build_report(est, None, landmarks_of(lm_truth), truth, lm_truth)
@@ -175,7 +175,7 @@ def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_veloc
     assert meta["observer"]["velocity_bias"]["share"] is None
     assert not any("likely lost" in n for n in meta["notes"])
     conv = report["convergence"]  # judged against the scene: before, "never locked on" beside 0 m of extent
-    assert conv["trajectory_extent_m"] < 0.01 and conv["scene_extent_m"] > 1.0 and not conv["lost"]
+    assert conv["trajectory_extent_m"] < 0.01 and not conv["lost"] and conv["scene_extent_m"] > 1.0
 
 
 def test_every_alignment_a_report_can_state_has_its_words_in_the_summaries_and_figures():

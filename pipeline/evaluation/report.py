@@ -245,13 +245,15 @@ def _landmark_section(landmarks: Table | None, landmark_truth, ev: TrajectoryEva
 
 
 def _scene(landmarks: Table | None, landmark_truth, ev: TrajectoryEvaluation) -> np.ndarray | None:
-    """The landmarks (M, 3) in the truth frame, the scale of a truth that does not translate
-    (:func:`.sections.scene_extent`): the truth's map, else the estimate's through the trajectory's alignment; None
-    without either."""
-    if landmark_truth:
-        return np.array([np.asarray(p, dtype=np.float64) for p in landmark_truth.values()])
+    """The landmarks the run mapped (M, 3) in the truth frame, the scale of a truth that does not translate
+    (:func:`.sections.scene_extent`): their truth positions, else the estimate's own through the trajectory's
+    alignment (the truth's whole map where the run mapped none; a room's far side the camera never saw is no
+    scale of the run: 12.3 m RMS against 3.9 on a generated spin); None without either."""
     if landmarks is None or not n_rows(landmarks):
-        return None
+        return None if not landmark_truth else np.array([np.asarray(p, float) for p in landmark_truth.values()])
+    ids = column(landmarks, "id", np.int64)
+    if landmark_truth and any(int(i) in landmark_truth for i in ids):
+        return np.array([np.asarray(landmark_truth[int(i)], float) for i in ids if int(i) in landmark_truth])
     return ev.alignment.positions(np.column_stack([column(landmarks, c, np.float64) for c in ("x", "y", "z")]))
 
 
