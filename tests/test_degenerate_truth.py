@@ -70,6 +70,8 @@ def test_a_truth_that_fixes_no_rotation_is_aligned_by_its_attitudes_and_the_repo
     assert rep["landmarks"]["error_m"]["rmse"] < 0.05  # the map in the truth's frame (a noise fit: metres)
     assert rep["ape"]["truth_frame_turn"] is None
     assert any(n.startswith("the se3 alignment was not fitted") and shape in n for n in rep["notes"])
+    # a line translates: its own extent judges the convergence; a point's is its noise: the scene's judges
+    assert (rep["convergence"]["scene_extent_m"] is None) == (kind == "line")
 
 
 def test_a_rig_turning_in_place_is_judged_lost_or_coarse_against_its_scene_not_its_noise():
@@ -141,7 +143,8 @@ def test_the_velocity_bias_check_says_nothing_of_a_body_that_does_not_translate(
 def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_velocity_bias(tmp_path):
     """The generated hand-held rig turning in place (1.5 m up, 0.1-0.7 rad/s about the vertical; seed=3704, 90 s):
     before, ``umeyama: degenerate input`` left it without an error report, and fast-adaptation's velocity bias
-    wandering against the velocity's noise said its estimate was likely lost."""
+    wandering against the velocity's noise said its estimate was likely lost; then its convergence, judged against
+    the truth's extent (0 m), read "never locked on" (the scene's extent judges it now)."""
     import json
     from dataclasses import replace
 
