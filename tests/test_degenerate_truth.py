@@ -10,6 +10,7 @@ import pytest
 
 from slamobs.pipeline.evaluation import build_report
 from slamobs.pipeline.evaluation.align import ATTITUDE, fit_alignment, rotation_undetermined
+from slamobs.pipeline.evaluation.markdown import convergence_line
 from slamobs.pipeline.evaluation.report import validate_report
 from slamobs.pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
 from slamobs.pipeline.observers.base import BIAS_SHARE, bias_share
@@ -69,6 +70,38 @@ def test_a_truth_that_fixes_no_rotation_is_aligned_by_its_attitudes_and_the_repo
     assert rep["landmarks"]["error_m"]["rmse"] < 0.05  # the map in the truth's frame (a noise fit: metres)
     assert rep["ape"]["truth_frame_turn"] is None
     assert any(n.startswith("the se3 alignment was not fitted") and shape in n for n in rep["notes"])
+    # a line translates: its own extent judges the convergence; a point's is its noise: the scene's judges
+    assert (rep["convergence"]["scene_extent_m"] is None) == (kind == "line")
+
+
+def test_a_rig_turning_in_place_is_judged_lost_or_coarse_against_its_scene_not_its_noise():
+    """A truth at one point has an extent of 0 m (its noise): an estimate 0.2 m off, a few per cent of the 5 m to
+    its landmarks, was "not converged: above the trajectory's own extent, 0 m RMS: never locked on" (fast-adaptation
+    on the generated spin, 0.17 m). Judged against the scene it converged; one off by more than the scene did not."""
+    truth = truth_of("spin", 0.002)
+    lm_truth = {100 + i: p for i, p in enumerate(np.random.default_rng(3890).uniform(-4, 4, (8, 3)))}
+    est = estimate_of(truth)
+    est["x"] = est["x"] + 0.2  # a steady 0.2 m off (in the estimate's frame: the alignment's means take part of it)
+    est["y"] = est["y"] + 0.2 * np.sin(np.arange(len(est)) / 300.0)
+    rep = build_report(est, None, landmarks_of(lm_truth), truth, lm_truth)
+    validate_report(rep)
+    conv = rep["convergence"]
+    assert conv["trajectory_extent_m"] < 0.01 < 0.1 < conv["steady_level_m"]  # above the truth's extent
+    assert not conv["lost"] and not conv["coarse"] and conv["t_since_start_s"] is not None
+    assert not convergence_line(conv).startswith(("no:", "coarse"))
+    assert conv["scene_extent_m"] == pytest.approx(
+        np.sqrt(np.mean([np.sum((p - truth.position.mean(axis=0)) ** 2) for p in lm_truth.values()])), rel=1e-3
+    )
+    est = estimate_of(truth)  # the control: 10 m off at first, settling 10 m... off along a sway the truth lacks
+    est["x"] = est["x"] + 10.0 * np.sin(np.arange(len(est)) / 50.0)
+    rep = build_report(est, None, landmarks_of(lm_truth), truth, lm_truth)
+    conv = rep["convergence"]
+    assert conv["lost"] and conv["steady_level_m"] > conv["scene_extent_m"] and conv["t_ns"] is None
+    assert "above the scene's extent" in convergence_line(conv) and "never locked on" in convergence_line(conv)
+    # no landmarks, no scale: no verdict of lost against the truth's noise
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    conv = build_report(est, None, empty, truth, None)["convergence"]
+    assert conv["scene_extent_m"] is None and not conv["lost"]
 
 
 def test_a_truth_that_spreads_is_aligned_by_umeyama_as_evo_does():
@@ -110,7 +143,8 @@ def test_the_velocity_bias_check_says_nothing_of_a_body_that_does_not_translate(
 def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_velocity_bias(tmp_path):
     """The generated hand-held rig turning in place (1.5 m up, 0.1-0.7 rad/s about the vertical; seed=3704, 90 s):
     before, ``umeyama: degenerate input`` left it without an error report, and fast-adaptation's velocity bias
-    wandering against the velocity's noise said its estimate was likely lost."""
+    wandering against the velocity's noise said its estimate was likely lost; then its convergence, judged against
+    the truth's extent (0 m), read "never locked on" (the scene's extent judges it now)."""
     import json
     from dataclasses import replace
 
@@ -143,6 +177,8 @@ def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_veloc
     assert report["ape"]["rotation_deg"]["rmse"] < 20.0  # the estimate's own attitude error, not a noise fit
     assert meta["observer"]["velocity_bias"]["share"] is None
     assert not any("likely lost" in n for n in meta["notes"])
+    conv = report["convergence"]  # judged against the scene: before, "never locked on" beside 0 m of extent
+    assert conv["trajectory_extent_m"] < 0.01 and not conv["lost"] and conv["scene_extent_m"] > 1.0
 
 
 def test_every_alignment_a_report_can_state_has_its_words_in_the_summaries_and_figures():

@@ -139,6 +139,25 @@ def position_spread(p: np.ndarray) -> np.ndarray:
     return np.sqrt(np.clip(ev, 0.0, None))
 
 
+def spread_axes(ref_pos: np.ndarray, noise: float | None = None, yaw: bool = False) -> tuple[np.ndarray, float, int]:
+    """``(spread, noise, axes)`` of the truth positions ``ref_pos`` (N, 3, time order): their rms spread along their
+    principal axes (:func:`position_spread`; the horizontal ones only with ``yaw``), the noise they are judged
+    against (``noise``, else :func:`position_noise`, at least 1e-9 of the coordinates' size, for a truth without
+    noise) and how many axes spread over ``SPREAD_OVER_NOISE`` times it: 0 for a rig that does not translate."""
+    ref = np.asarray(ref_pos, dtype=np.float64)
+    spread = position_spread(ref[:, :2] if yaw else ref)
+    if noise is None:
+        noise = max(position_noise(ref), 1e-9 * (1.0 + float(np.max(np.abs(ref)))))
+    return spread, noise, int(np.count_nonzero(spread > SPREAD_OVER_NOISE * noise))
+
+
+def translates(ref_pos: np.ndarray) -> bool:
+    """Whether the truth positions ``ref_pos`` (N, 3, time order) spread over their noise along some axis
+    (:func:`spread_axes`): False for a rig turning in place, whose positions are one point and its noise."""
+    ref = np.asarray(ref_pos, dtype=np.float64)
+    return ref.shape[0] < 3 or not np.all(np.isfinite(ref)) or spread_axes(ref)[2] > 0
+
+
 def rotation_undetermined(ref_pos: np.ndarray, yaw: bool = False, error_m: float | None = None) -> str | None:
     """Why the truth positions ``ref_pos`` (N, 3, time order) cannot fix a rotation, or None when they can. A
     least-squares fit on positions fixes the rotation about an axis only where the positions spread across it: a
@@ -150,13 +169,12 @@ def rotation_undetermined(ref_pos: np.ndarray, yaw: bool = False, error_m: float
     ref = np.asarray(ref_pos, dtype=np.float64)
     if ref.shape[0] < 3 or not np.all(np.isfinite(ref)):
         return None  # the fit's own checks say what is wrong
-    spread = position_spread(ref[:, :2] if yaw else ref)
     axes_needed = 1 if yaw else 2
-    noise = max(position_noise(ref), 1e-9 * (1.0 + float(np.max(np.abs(ref)))))
+    spread, noise, axes = spread_axes(ref, yaw=yaw)
     what = "their noise"
     if error_m is not None and error_m < noise:
-        noise, what = error_m, "the fit's residual"
-    axes = int(np.count_nonzero(spread > SPREAD_OVER_NOISE * noise))
+        spread, noise, axes = spread_axes(ref, error_m, yaw)
+        what = "the fit's residual"
     if axes >= axes_needed:
         return None
     shape = "along a line: they fix no turn about it" if axes == 1 else "about one point: they fix no rotation"

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from slamobs.pipeline.evaluation.align import UPSIDE_DOWN_DEG
+from slamobs.pipeline.evaluation.markdown import extent_words
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
     VEL_COLUMNS,
@@ -188,7 +189,8 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation, turn: 
             level=((level_t - t0) / 1e9, level),
             verdict=convergence_verdict(convergence),
             band_label="this whole-run fit's band" if convergence.get("tail_frame") else "convergence band",
-            extent_m=convergence.get("trajectory_extent_m") if convergence.get("lost") else None,
+            extent_m=extent_words(convergence)[0] if convergence.get("lost") else None,
+            extent_name=extent_words(convergence)[1],
             attitude_turned=turned,
         ),
     )
@@ -198,7 +200,7 @@ def convergence_verdict(conv: dict[str, Any]) -> str | None:
     """The error figure's words for the report's convergence section: why it has no convergence time (the band is
     still drawn), or that the level reached is coarse; None for a plain convergence."""
     if conv.get("t_since_start_s") is not None:
-        coarse = f"coarse: level {100 * conv['steady_level_share']:.0f} % of the path's extent"
+        coarse = f"coarse: level {100 * conv['steady_level_share']:.0f} % of the {extent_words(conv)[1]}"
         if tf := conv.get("tail_frame"):  # judged in the frame of the run's end: the band drawn is not its band
             tail = round(100 * conv["tail_fraction"])
             return (
@@ -207,7 +209,8 @@ def convergence_verdict(conv: dict[str, Any]) -> str | None:
             )
         return coarse if conv.get("coarse") else None
     if conv.get("lost"):
-        return f"not converged: level above the path's extent ({conv['trajectory_extent_m']:.3g} m RMS)"
+        extent, name, _ = extent_words(conv)
+        return f"not converged: level above the {name} ({extent:.3g} m RMS)"
     if conv.get("growing"):
         return "not converged: the error level keeps growing"
     if conv.get("recurring_s"):

@@ -105,23 +105,39 @@ def _tail_frame(conv: dict[str, Any]) -> str:
     )
 
 
+def extent_words(conv: dict[str, Any]) -> tuple[float | None, str, str]:
+    """``(extent_m, name, how)``: the scale the convergence section judged lost and coarse by, its short name and
+    how it is measured: the trajectory's own extent, or, for a truth that does not translate (``scene_extent_m``),
+    the scene's."""
+    scene = conv.get("scene_extent_m")
+    if scene is None:
+        return conv.get("trajectory_extent_m"), "path's extent", "RMS about its centre"
+    rest = f"{conv['trajectory_extent_m']:.2g} m RMS about its centre"
+    how = f"RMS from the rig's position to the landmarks; the truth does not translate: {rest}"
+    return scene, "scene's extent", how
+
+
 def _coarse(conv: dict[str, Any]) -> str:
     """What a converged (or recurring) figure adds when its level is a sizeable share of the motion itself."""
     if not conv.get("coarse"):
         return ""
     settled = (conv.get("tail_frame") or conv)["steady_level_m"]
+    extent, name, how = extent_words(conv)
+    whose = "trajectory's own extent" if name == "path's extent" else name
     return (
         f"; but that level, {settled:.3g} m, is {100 * conv['steady_level_share']:.0f} % of the "
-        f"trajectory's own extent ({conv['trajectory_extent_m']:.3g} m RMS about its centre): a coarse estimate"
+        f"{whose} ({extent:.3g} m {how}): a coarse estimate"
     )
 
 
 def _not_converged(conv: dict[str, Any]) -> str:
     if conv.get("lost"):
+        extent, name, how = extent_words(conv)
+        whose = "trajectory's own extent" if name == "path's extent" else name
         return (
             f"not converged (the error level, {conv['steady_level_m']:.3g} m at most over the last "
-            f"{round(100 * conv['tail_fraction'])} % of the log, is above the trajectory's own extent, "
-            f"{conv['trajectory_extent_m']:.3g} m RMS about its centre: the estimate never locked on to the motion)"
+            f"{round(100 * conv['tail_fraction'])} % of the log, is above the {whose}, "
+            f"{extent:.3g} m {how}: the estimate never locked on to the motion)"
         )
     if conv.get("growing"):
         tail = round(100 * conv["tail_fraction"])

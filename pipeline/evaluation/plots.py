@@ -296,16 +296,18 @@ def plot_errors(
     verdict: str | None = None,
     extent_m: float | None = None,
     band_label: str = "convergence band",
+    extent_name: str = "path's extent",
     attitude_turned: tuple[np.ndarray, float, float] | None = None,
 ) -> Path:
     """Aligned position and attitude error over time; on the position panel only (the convergence figure is about
     the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time, and in
     its legend ``verdict``: why there is no convergence time, or what qualifies the one drawn (a coarse level), so
     the band is never read as a convergence the report does not claim; ``extent_m`` (a lost estimate's) the path's
-    extent its level is judged against, drawn so the level is seen above it; ``band_label`` names the band line
-    (the whole-run fit's band when the frame of the run's end decided the convergence). ``attitude_turned``: the
-    attitude error per pair less the constant turn of the truth's body frame against the estimate's, that turn
-    (deg) and that error's rmse (report.md's note on the rotation APE), drawn beside the error as aligned."""
+    extent its level is judged against (``extent_name``: the scene's for a truth that does not translate), drawn so
+    the level is seen above it; ``band_label`` names the band line (the whole-run fit's band when the frame of the
+    run's end decided the convergence). ``attitude_turned``: the attitude error per pair less the constant turn of
+    the truth's body frame against the estimate's, that turn (deg) and that error's rmse (report.md's note on the
+    rotation APE), drawn beside the error as aligned."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m])
@@ -315,7 +317,7 @@ def plot_errors(
     if band_m is not None:
         ax_p.axhline(band_m, color="tab:red", ls=":", lw=1.0, label=f"{band_label} {band_m:.3g} m")
     if extent_m is not None:
-        ax_p.axhline(extent_m, color="0.3", ls="--", lw=1.0, label=f"path's extent {extent_m:.3g} m RMS")
+        ax_p.axhline(extent_m, color="0.3", ls="--", lw=1.0, label=f"{extent_name} {extent_m:.3g} m RMS")
     sel = envelope(len(t_s), [attitude_error_deg])
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if attitude_turned is not None:

@@ -26,6 +26,7 @@ from slamobs.pipeline.evaluation.align import (
     apply_alignment,
     fit_alignment,
     gravity_tilt_deg,
+    translates,
 )
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
@@ -1253,6 +1254,24 @@ class BiasSection(Section):
             section["window_error_norm"] = {k: float(np.linalg.norm(werr[k])) for k in werr}
 
 
+def truth_at_rest(ev: TrajectoryEvaluation) -> bool:
+    """Whether the truth does not translate (a rig turning in place): its positions spread along no axis over
+    their noise (:func:`.align.translates`), their RMS distance from their centre that noise. Asked only of a run
+    the report aligned by the attitudes (:data:`ATTITUDE`), the one kind such a truth gets: a spreading truth's
+    report pays for no spread check here."""
+    return ev.alignment.kind == ATTITUDE and not translates(ev.paired.ref_pos)
+
+
+def scene_extent(ev: TrajectoryEvaluation, scene: np.ndarray | None) -> float | None:
+    """The scale the convergence verdict judges a truth at rest by (:func:`truth_at_rest`; beside its own extent,
+    its noise, any estimate would be "lost"): the landmarks' ``scene`` (M, 3, truth frame) RMS distance from the
+    truth's centre, how far off an estimate must be to have never found where it is among them; None without
+    landmarks."""
+    if scene is None or len(scene) == 0:
+        return None
+    return slam_metrics.rms_extent(scene, np.mean(ev.paired.ref_pos, axis=0))
+
+
 class ConvergenceSection(Section):
     """When the aligned position error reaches the observer's own steady level (:func:`slam_metrics.convergence`)."""
 
@@ -1276,12 +1295,18 @@ class ConvergenceSection(Section):
             "is pulled toward a long bad stretch, e.g. a first lap before its loop closed, and puts a right "
             "second lap off; a drift does not settle in that frame), or if "
             "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
-            "centre (lost: the estimate never locked on to the motion), or if the level was within band_m before, "
+            "centre (lost: the estimate never locked on to the motion; where the truth does not translate, a rig "
+            "turning in place whose positions spread along no axis over their noise, the report's alignment then "
+            "the attitude one, scene_extent_m instead, the RMS distance from the truth's centre of the landmarks "
+            "the run mapped: their truth positions, else the estimate's through the alignment; no verdict of lost "
+            "or coarse without either), "
+            "or if the level was within band_m before, "
             "for at least as long as from that time to the end, and left it again for at least window_s (recurring_s: "
             "that stretch, s "
             "after the estimate start: an error that returns, e.g. once a lap); coarse: steady_level_m above "
             "coarse_share × "
-            "trajectory_extent_m and threshold_m but not lost (the report states the level as a share of the "
+            "trajectory_extent_m (or scene_extent_m) and threshold_m but not lost (the report states the level as a "
+            "share of the "
             "extent beside the convergence time); "
             "steady_error_m is the "
             "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
@@ -1292,11 +1317,16 @@ class ConvergenceSection(Section):
         super().__init__()
         self.threshold_m = threshold_m
 
-    def process_data(self, ev: TrajectoryEvaluation) -> None:
+    def process_data(self, ev: TrajectoryEvaluation, scene: np.ndarray | None = None) -> None:
+        """``scene``: the landmarks (M, 3) in the truth frame, the scale a truth that does not translate is judged
+        by (:func:`scene_extent`)."""
         t0 = int(ev.estimate.t_ns[0])
         extent = ev.truth_extent_m
+        rest = truth_at_rest(ev)
+        scene_m = scene_extent(ev, scene) if rest else None
+        scale = scene_m if rest else extent
         c = slam_metrics.convergence(
-            ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent, refit_errors(ev)
+            ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, scale, refit_errors(ev)
         )
         tail_frame = c["tail_frame"]
         self.result = {
@@ -1314,9 +1344,10 @@ class ConvergenceSection(Section):
             "growth_factor": slam_metrics.GROWTH_FACTOR,
             "growing": c["growing"],
             "trajectory_extent_m": extent,
+            "scene_extent_m": scene_m,
             "lost": c["lost"],
             "coarse_share": slam_metrics.COARSE_SHARE,
-            "steady_level_share": c["settled_level"] / extent if extent > 0 else None,
+            "steady_level_share": c["settled_level"] / scale if scale else None,
             "coarse": c["coarse"],
             "estimate_start_ns": t0,
             "recurring_s": None if c["recurring"] is None else [(x - t0) / 1e9 for x in c["recurring"]],

@@ -14,13 +14,14 @@ from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import umeyama
 
 
-def rms_extent(xyz: np.ndarray) -> float:
-    """RMS distance of the points from their centre (m): a trajectory's size that its jitter does not lengthen, as
-    a path length would. (N, 3) float rows take each centred column's squares in turn, added left to right as
-    NumPy's reduction along the short axis adds them (the same bits, without its slow short-axis reduction and
-    the centred copy: 13 against ~5 ms on an hour's pairs; the report asks three times)."""
+def rms_extent(xyz: np.ndarray, centre: np.ndarray | None = None) -> float:
+    """RMS distance of the points from their centre (m), or from ``centre``: a trajectory's size that its jitter
+    does not lengthen, as a path length would (a scene's about a rig: its landmarks from the rig's position). (N, 3)
+    float rows take each centred column's squares in turn, added left to right as NumPy's reduction along the short
+    axis adds them (the same bits, without its slow short-axis reduction and the centred copy: 13 against ~5 ms on
+    an hour's pairs; the report asks three times)."""
     x = np.asarray(xyz)
-    centre = x.mean(axis=0)
+    centre = x.mean(axis=0) if centre is None else np.asarray(centre, dtype=np.float64)
     if x.ndim != 2 or x.shape[1] != 3 or x.dtype != np.float64:
         return float(np.sqrt(np.mean(np.sum((x - centre) ** 2, axis=1))))
     d = x[:, 0] - centre[0]
