@@ -471,14 +471,15 @@ def robust_scale(tri: Triplets, ratio: float = 1.0) -> float:
     def median_chi2(s2: float) -> float:
         return float(np.median(along2 / (k_along * c * s2 + m) + 2.0 * across2 / (k_across * c * s2 + m)))
 
-    hi = float(np.median((along2 / k_along + 2.0 * across2 / k_across) / c)) / CHI2_3_MEDIAN  # motion_var left out
-    if not hi > 0.0:
-        return 0.0
-    lo = hi * 1e-6  # a law a millionth of the residuals' is no law: the dead reckoning's then
-    for _ in range(30):  # the statistic falls as s2 grows: bisection in log s2 (to 1e-8 of it)
-        mid = float(np.sqrt(lo * hi))
-        lo, hi = (mid, hi) if median_chi2(mid) > CHI2_3_MEDIAN else (lo, mid)
-    return hi
+    s2 = float(np.median((along2 / k_along + 2.0 * across2 / k_across) / c)) / CHI2_3_MEDIAN  # motion_var left out
+    for _ in range(50):  # s2 times the median over its target: falls to the root from above, at once without motion
+        if not s2 > 0.0:
+            return 0.0
+        new = s2 * median_chi2(s2) / CHI2_3_MEDIAN
+        if new >= s2 * (1.0 - 1e-6):
+            return new
+        s2 = new
+    return s2
 
 
 def _fit_law(
