@@ -44,8 +44,8 @@ OUTLIER_SIGMAS = 4.0
 #: log's heavy tail (MR.CLAM's slowly varying range errors and mis-associations, 10-100x) stays with the 4 σ rounds
 #: (at 10x or 30x the laws of MR.CLAM 6-r2, 7-r3, 7-r4 moved and their riekf/batch APE by -24 to +41 %).
 GROSS_FACTOR, GROSS_BINS = 100.0, 10
-#: The median of a χ² variable of three degrees of freedom: a residual's ``|e|²`` over this is its variance per
-#: component (the robust start's scale, :func:`robust_scale`).
+#: The median of a χ² variable of three degrees of freedom: the median of the residuals' ``|e|²``, each part
+#: whitened by its share of the law, is this at the robust start's scale (:func:`robust_scale`).
 CHI2_3_MEDIAN = 2.366
 #: Bootstrap resamples of the detection-noise fit.
 BOOTSTRAP = 20
