@@ -44,8 +44,8 @@ OUTLIER_SIGMAS = 4.0
 #: log's heavy tail (MR.CLAM's slowly varying range errors and mis-associations, 10-100x) stays with the 4 σ rounds
 #: (at 10x or 30x the laws of MR.CLAM 6-r2, 7-r3, 7-r4 moved and their riekf/batch APE by -24 to +41 %).
 GROSS_FACTOR, GROSS_BINS = 100.0, 10
-#: The median of a χ² variable of three degrees of freedom: a residual's ``|e|²`` over this is its variance per
-#: component (the robust start's scale, :func:`_robust_start`).
+#: The median of a χ² variable of three degrees of freedom: the median of the residuals' ``|e|²``, each part
+#: whitened by its share of the law, is this at the robust start's scale (:func:`robust_scale`).
 CHI2_3_MEDIAN = 2.366
 #: Bootstrap resamples of the detection-noise fit.
 BOOTSTRAP = 20
@@ -414,11 +414,23 @@ def _inliers(tri: Triplets, e2: np.ndarray, v: np.ndarray, ratio: float) -> np.n
     if ratio == 1.0:
         return np.max(e2, axis=1) <= OUTLIER_SIGMAS**2 * v
     law, m = v - tri.motion_var, tri.motion_var
-    r2 = ratio * ratio
-    along2 = np.sum(tri.e * tri.u, axis=1) ** 2
-    across2 = (np.sum(e2, axis=1) - along2) / 2.0
-    pred_along, pred_across = 3.0 * r2 / (r2 + 2.0) * law + m, 3.0 / (r2 + 2.0) * law + m
+    along2, across2 = _along_across(tri, e2)
+    k_along, k_across = _shares(ratio)
+    pred_along, pred_across = k_along * law + m, k_across * law + m
     return (along2 <= OUTLIER_SIGMAS**2 * pred_along) & (across2 <= OUTLIER_SIGMAS**2 * pred_across)
+
+
+def _shares(ratio: float) -> tuple[float, float]:
+    """The law's variance (the mean over the axes) along the line of sight and on each axis across it at the
+    range/bearing ``ratio``: ``3ρ²/(ρ²+2)`` and ``3/(ρ²+2)``, as riekf weighs them."""
+    r2 = ratio * ratio
+    return 3.0 * r2 / (r2 + 2.0), 3.0 / (r2 + 2.0)
+
+
+def _along_across(tri: Triplets, e2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each residual's squared part along the middle detection's line of sight and its mean square per axis across."""
+    along2 = np.sum(tri.e * tri.u, axis=1) ** 2
+    return along2, (np.sum(e2, axis=1) - along2) / 2.0
 
 
 def _not_gross(tri: Triplets) -> np.ndarray:
@@ -432,19 +444,42 @@ def _not_gross(tri: Triplets) -> np.ndarray:
 
 def _robust_start(tri: Triplets, ratio: float) -> np.ndarray:
     """The triplets that are not gross (:func:`_not_gross`) and within ``OUTLIER_SIGMAS`` of their range
-    quantile's robust scale: ``GROSS_BINS`` quantiles of the median of a triplet's three ranges (a wild detection
-    moved 1-3 m moves its range too: binned by the middle one's, the triplets it is the middle of gathered in the
-    extreme quantiles, a majority there on a ground robot seeing 3-5 m, and their median was theirs); each
-    quantile's variance per unit of a triplet's weights ``c2`` is the median of its ``|e|²/Σc2`` over
-    ``CHI2_3_MEDIAN``, judged by :func:`_inliers`. A wild detection sits in up to three triplets: a Gaussian fit
-    on all of them before any is dropped came out 1.4-2.3x too wide at 5 % wild, and three 4 σ rounds from there
-    did not bring it back (docs/noise.md, "Wild detections")."""
-    q = np.sum(tri.e * tri.e, axis=1) / np.sum(tri.c2, axis=1)
-    scale = np.empty_like(q)
+    quantile's robust scale (:func:`robust_scale`), judged by :func:`_inliers`: ``GROSS_BINS`` quantiles of the
+    median of a triplet's three ranges (a wild detection moved 1-3 m moves its range too: binned by the middle
+    one's, the triplets it is the middle of gathered in the extreme quantiles, a majority there on a ground robot
+    seeing 3-5 m, and their median was theirs). A wild detection sits in up to three triplets: a Gaussian fit on
+    all of them before any is dropped came out 1.4-2.3x too wide at 5 % wild, and three 4 σ rounds from there did
+    not bring it back (docs/noise.md, "Wild detections")."""
+    scale = np.empty(tri.e.shape[0])
     r = np.median(tri.r, axis=1)  # one wild detection's range does not move its triplets to another quantile
-    for part in np.array_split(np.argsort(r, kind="stable"), min(GROSS_BINS, max(1, q.size // 10))):
-        scale[part] = np.median(q[part]) / CHI2_3_MEDIAN
-    return _not_gross(tri) & _inliers(tri, tri.e * tri.e, scale * np.sum(tri.c2, axis=1), ratio)
+    for part in np.array_split(np.argsort(r, kind="stable"), min(GROSS_BINS, max(1, scale.size // 10))):
+        scale[part] = robust_scale(_subset(tri, part), ratio)
+    return _not_gross(tri) & _inliers(tri, tri.e * tri.e, scale * np.sum(tri.c2, axis=1) + tri.motion_var, ratio)
+
+
+def robust_scale(tri: Triplets, ratio: float = 1.0) -> float:
+    """The law's variance per unit of a triplet's weights ``c2`` at which the median of the triplets' whitened
+    χ²₃ statistic is ``CHI2_3_MEDIAN``: each residual's part along the line of sight and across it
+    (:func:`_along_across`) over its own variance at the range/bearing ``ratio`` (:func:`_shares`), the dead
+    reckoning's ``motion_var`` added. ``|e|²/Σc2`` alone is a χ²₃ only with ``ratio`` 1: a range error 14x the
+    bearing's (PnP on the sample camera log) puts its median at 0.58 of the χ²₃ median, the scale 0.76x in σ."""
+    e2 = tri.e * tri.e
+    along2, across2 = _along_across(tri, e2)
+    k_along, k_across = _shares(ratio)
+    c, m = np.sum(tri.c2, axis=1), tri.motion_var
+
+    def median_chi2(s2: float) -> float:
+        return float(np.median(along2 / (k_along * c * s2 + m) + 2.0 * across2 / (k_across * c * s2 + m)))
+
+    s2 = float(np.median((along2 / k_along + 2.0 * across2 / k_across) / c)) / CHI2_3_MEDIAN  # motion_var left out
+    for _ in range(50):  # s2 times the median over its target: falls to the root from above, at once without motion
+        if not s2 > 0.0:
+            return 0.0
+        new = s2 * median_chi2(s2) / CHI2_3_MEDIAN
+        if new >= s2 * (1.0 - 1e-6):
+            return new
+        s2 = new
+    return s2
 
 
 def _fit_law(

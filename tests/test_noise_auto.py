@@ -13,7 +13,7 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.noise import NoiseConfig, estimate_log_noise, resolve_noise, stream_density
-from slamobs.pipeline.noise_estimation import white_noise_density
+from slamobs.pipeline.noise_estimation import Triplets, robust_scale, white_noise_density
 from slamobs.pipeline.readers.covariance import implausible, implausible_rows
 from slamobs.pipeline.simulate import NoiseModel, expected_streams, get_scenario, simulate, write_log
 from slamobs.pipeline.simulate.scenarios import customize
@@ -489,6 +489,30 @@ def test_five_percent_wild_detections_do_not_widen_the_detection_law(law):
     found = estimate_log_noise(stream, stream_density(sim.odom.t_ns, sim.odom.linear)).detection
     r = np.linspace(*found.ranges, 3)
     assert within(found.sigma(r), true_sigma(nm, r)), (found.law, found.sigma(r), true_sigma(nm, r))
+
+
+@pytest.mark.parametrize("ratio", [1.0, 3.0, 14.0])
+def test_the_robust_scale_is_the_law_whatever_the_range_bearing_ratio(ratio):
+    """PnP on sample_logs/figure8_camera.mcap: the detections' error along the line of sight is 14x that across it.
+    The robust start's scale was the median of ``|e|²/Σc²`` over the χ²₃ median, 0.58 of the law's variance there
+    (0.76x in σ; a χ²₃ only at ratio 1); now each part of the residual is whitened by its own share of the law
+    before the median: Gaussian triplets at the law's variance, the dead reckoning's added, give it back."""
+    rng = np.random.default_rng(3880)
+    n, sigma = 20_000, 0.01
+    u = rng.standard_normal((n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    a = rng.standard_normal((n, 3))
+    a -= np.sum(a * u, axis=1, keepdims=True) * u
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    b = np.cross(u, a)
+    c2 = np.tile([0.25, 1.0, 0.25], (n, 1))
+    motion_var = np.full(n, (0.3 * sigma) ** 2)
+    k_along, k_across = 3.0 * ratio**2 / (ratio**2 + 2.0), 3.0 / (ratio**2 + 2.0)
+    sd_along, sd_across = (np.sqrt(k * 1.5 * sigma**2 + motion_var) for k in (k_along, k_across))
+    z = rng.standard_normal((n, 3))
+    e = (z[:, :1] * u) * sd_along[:, None] + (z[:, 1:2] * a + z[:, 2:] * b) * sd_across[:, None]
+    tri = Triplets(e, c2, np.full((n, 3), 8.0), motion_var, u)
+    assert np.sqrt(robust_scale(tri, ratio)) == pytest.approx(sigma, rel=0.03)
 
 
 def test_a_fit_told_in_full_above_is_named_not_repeated():
