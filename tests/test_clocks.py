@@ -163,7 +163,7 @@ def test_out_of_order_duplicates_and_repeated_stamps(tmp_path):
     imu = _topic(summary, "/imu")
     assert (imu.out_of_order, imu.duplicates, imu.repeated_stamps) == (2, 1, 1)  # a swapped pair: one step back
     warning = next(w for w in summary.warnings if w.startswith("/imu:"))
-    assert "2 out-of-order stamps, 1 exact duplicate, 1 repeated stamp with different content" in warning
+    assert "2 out-of-order stamps, 1 exact duplicate, 1 repeated stamp with different values" in warning
     streams = read_log(tmp_path / "order.bag")
     assert np.all(np.diff(streams.angular_velocity.t_ns) >= 0)
 

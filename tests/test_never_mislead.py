@@ -432,6 +432,16 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     assert res.output.count(placed[0]) == 1 and placed[0] in (tmp_path / "out" / "report.md").read_text()
     meta = json.loads((tmp_path / "out" / "run.json").read_text())
     assert meta["input"]["base_frame"]["frame"] == "base_link", meta["input"]
+    # report.md's relative errors (RPE, drift, segment errors) compare motions in each one's body frame: the turn is
+    # in them, and the sentence over them says so (it was said above the figures only)
+    turn = report["ape"]["truth_frame_turn"]
+    relative = (tmp_path / "out" / "report.md").read_text().split("## Relative error and drift\n\n", 1)[1]
+    assert relative.startswith(
+        f"Note: the truth's body frame looks turned against the estimate's by {turn['angle_deg']:.1f} deg (the note "
+        "on the rotation APE); the relative errors below compare each trajectory's motion in its own body frame"
+    ), relative[:300]
+    assert relative.split("\n", 1)[0].endswith("frames.body, or frames.truth_rotation for the report, removes it.")
+    turned_rpe = report["rpe"]["translation_m"]["rmse"]
     # the same log with the body set: the truth is in the body's frame, no note of a turn, nor of the body
     fixed = tmp_path / "body.yaml"
     fixed.write_text("frames:\n  body: base_link\nevaluation:\n  plots: false\n")
@@ -439,6 +449,8 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     report = json.loads((tmp_path / "fixed" / "report.json").read_text())
     assert res.exit_code == 0 and report["ape"]["rotation_deg"]["rmse"] < 5
     assert not any("as the body frame" in n or "NEES" in n and "turn" in n for n in report["notes"])
+    assert report["rpe"]["translation_m"]["rmse"] < turned_rpe / 3  # the turn was in the RPE
+    assert "looks turned" not in (tmp_path / "fixed" / "report.md").read_text()
 
 
 def test_a_comparison_whose_truth_looks_turned_names_the_body_and_the_base_once(sim, tmp_path):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -687,3 +688,33 @@ def test_a_chunk_is_walked_once_when_the_index_counts_its_messages(tmp_path, mon
         monkeypatch.setattr(chunks, "records", lambda *a: most.append(a[3] if len(a) > 3 else -1) or real(*a))
         read_rows(reader, path, {t: c for t, (m, c) in topics_of(reader).items() if m.msgtype in LAYOUTS})
     assert most == counts
+
+
+@pytest.mark.parametrize("container", ["bag", "mcap"])
+def test_info_and_the_run_judge_detections_recorded_twice_alike(tmp_path, container):
+    """Every detection message written twice, each copy with its own sequence numbers (the ROS1 header seq and the
+    array's image_seq, as the simulator's writer numbers them): the run drops them as exact duplicates, and info
+    says the same thing in the same words (it said '... repeated stamps with different content', comparing bytes)."""
+    sim = simulate("figure8", duration=3.0, seed=3852)
+    det = sim.detections
+    frames = np.repeat(np.arange(len(det.t_ns)), 2)
+    start, stop = det.offsets[frames], det.offsets[frames + 1]
+    rows = np.concatenate([np.arange(a, b) for a, b in zip(start, stop, strict=True)]).astype(np.int64)
+    fields = ("ids", "xyz", "quat_xyzw", "image_error", "object_error", "area")
+    twice = dataclasses.replace(
+        det,
+        t_ns=det.t_ns[frames],
+        rec_ns=det.rec_ns[frames],
+        offsets=np.r_[0, np.cumsum(stop - start)],
+        **{f: getattr(det, f)[rows] for f in fields},
+    )
+    log = write_log(dataclasses.replace(sim, detections=twice), tmp_path / f"twice.{container}", container)
+    n = len(det.t_ns)
+    said = f"{n} exact duplicates (every message recorded twice: a driver publishing twice? the stream is its {n}"
+    run_said = said.replace("duplicates (", "duplicates dropped (")
+    assert any(w.startswith(f"/fiducial_transforms: {run_said}") for w in read_log(log).warnings)
+    summary = inspect_log(log)
+    topic = next(t for t in summary.topics if t.topic == "/fiducial_transforms")
+    assert (topic.duplicates, topic.repeated_stamps) == (n, 0)
+    assert any(w.startswith(f"/fiducial_transforms: {said}") for w in summary.warnings), summary.warnings
+    assert not any("repeated stamp" in w for w in summary.warnings)

@@ -212,7 +212,12 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
 def _md_relative(report: dict[str, Any]) -> list[str]:
     """RPE, drift and the clock offset."""
     rpe_s, drift, off = report.get("rpe"), report.get("drift"), report["time_offset"]
+    from slamobs.pipeline.evaluation.sections import relative_errors_turned
+
     lines = ["## Relative error and drift", ""]
+    turned = relative_errors_turned((report.get("ape") or {}).get("truth_frame_turn"))
+    if turned and (rpe_s or drift or _md_segment_errors(report.get("segment_errors"))):
+        lines += [*turned, ""]
     if rpe_s:
         lines += [f"RPE, delta {rpe_s['delta']:g} {rpe_s['delta_unit']} ({rpe_s['n_pairs']} pairs):", ""]
         lines += _stats_table([("translation [m]", rpe_s["translation_m"]), ("rotation [deg]", rpe_s["rotation_deg"])])

@@ -1452,6 +1452,27 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
     )
 
 
+def relative_errors_turned(turn: dict[str, Any] | None) -> list[str]:
+    """The sentence over report.md's relative errors (RPE, drift, segment errors) once the APE section found the
+    truth's body frame turned against the estimate's (``turn``: ``ape.truth_frame_turn``, :func:`truth_frame_turn`).
+    Those errors compare each trajectory's motion in its own body frame (evo's RPE, KITTI's drift, rpg's segment
+    errors), so the turn is in them (TagSLAM test_22 riekf, truth turned 147.8 deg: segment errors 104-140 %, RPE
+    1.5 m on 1 m); they are kept as defined, the numbers evo_rpe gives on the same two trajectories, and the sentence
+    says the turn is in them and what removes it. Empty without a turn."""
+    if not turn:
+        return []
+    mend = (
+        "correct the camera's extrinsic (the note on the rotation APE names it) and run again"
+        if turn.get("camera_named")
+        else "frames.body, or frames.truth_rotation for the report, removes it"
+    )
+    return [
+        f"Note: {TRUTH_FRAME_TURNED} by {turn['angle_deg']:.1f} deg (the note on the rotation APE); the relative "
+        "errors below compare each trajectory's motion in its own body frame (evo's RPE, KITTI's drift, rpg's segment "
+        f"errors), so that turn is in them, translation and rotation: {mend}."
+    ]
+
+
 #: a NEES note's start (:func:`nees_note`), not the planar note's ("position NEES over x, y only")
 _NEES_NOTE = re.compile(r"^(position|attitude) NEES [-+.\deinf]+ \(DoF")
 

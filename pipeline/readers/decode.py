@@ -255,7 +255,7 @@ class Cleaning:
         if self.duplicates:
             parts.append(duplicates_text(self.duplicates, self.kept, " dropped"))
         if self.repeated and not on_record_time:
-            parts.append(plural(self.repeated, "repeated stamp") + " with different values")
+            parts.append(repeated_text(self.repeated))
         if self.nonfinite:
             parts.append(nonfinite_text(self.nonfinite))
         return ", ".join(parts + self.extra)
@@ -359,6 +359,33 @@ def duplicate_mask(t_sorted: np.ndarray, key: Callable[[int], bytes]) -> tuple[n
             seen.add(k)
             repeated += 1
     return drop, repeated
+
+
+def repeated_text(repeated: int) -> str:
+    """``N repeated stamps with different values`` (:func:`duplicate_mask`'s second count): a run's note and
+    ``info`` say it in these words."""
+    return plural(repeated, "repeated stamp") + " with different values"
+
+
+def column_duplicates(t_ns: np.ndarray, cols: fastdecode.TopicColumns) -> tuple[int, int]:
+    """Exact duplicates and repeated stamps among one topic's decoded messages (``cols``, record order) on the
+    stamps ``t_ns``, judged by :func:`duplicate_mask` as a run judges its stream: two messages of one stamp are the
+    same message when the values a run decodes of them are equal (a detection array's elements too), whatever their
+    sequence numbers (ROS1's header ``seq``, a driver's own counter such as ``image_seq``); a topic decoded without
+    values (no run reads it) by its payload's digest (ROS1: after the header ``seq``)."""
+    order = np.argsort(t_ns, kind="stable")
+    offsets = None if cols.counts is None or cols.items is None else _offsets(cols.counts)
+    by_values = cols.values.shape[1] > 0 or offsets is not None or cols.digest is None
+
+    def key(i: int) -> bytes:
+        k = order[i]
+        if not by_values:
+            return cols.digest[k].tobytes()  # type: ignore[index]
+        row = cols.values[k].tobytes()
+        return row if offsets is None else row + cols.items[offsets[k] : offsets[k + 1]].tobytes()  # type: ignore[index]
+
+    drop, repeated = duplicate_mask(t_ns[order], key)
+    return int(np.count_nonzero(drop)), repeated
 
 
 def _effective_stamps(t_ns: np.ndarray, rec_ns: np.ndarray, cleaning: Cleaning) -> np.ndarray:

@@ -38,6 +38,8 @@ from .decode import (
     decode_static_tf,
     static_tf_notes,
     duplicates_text,
+    column_duplicates,
+    repeated_text,
     gyro_not_filled,
     first_vectors,
     gyro_stand_in,
@@ -48,7 +50,7 @@ from .decode import (
     off_pace,
     stamp_pace,
 )
-from .fastdecode import FRAME_ID, TopicColumns, make_plan, plan_for, read_columns
+from .fastdecode import FRAME_ID, TopicColumns, item_plan_for, make_plan, plan_for, read_columns
 from .msgdefs import complete_definitions
 from .roles import ODOMETRY, ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
 from .rows import frame_name
@@ -89,9 +91,9 @@ class TopicSummary:
     stamp_end_ns: int | None = None
     rate_hz: float | None = None
     out_of_order: int | None = None  # stamps earlier than the one before (in record order)
-    duplicates: int | None = None  # same stamp and byte-identical message (ROS1: seq ignored)
+    duplicates: int | None = None  # same stamp, same values as a run judges them (decode.column_duplicates)
     note: str = ""
-    repeated_stamps: int | None = None  # same stamp as another message with different content
+    repeated_stamps: int | None = None  # same stamp as another message with different values
     header_clock: str | None = None  # "wall", "sim" (before 2000) or "zero"
     offset_s: float | None = None  # median header stamp minus record time
     offset_spread_s: float | None = None  # 5th-95th percentile width of header minus record
@@ -413,14 +415,17 @@ def _scan(
 ) -> dict[str, TopicColumns]:
     """Header columns (stamps, record times, frames, payload digests) of every headered topic, one pass; of the
     topics ``valued`` (those a run reads values of) the values too, as the run decodes them (``fastdecode.plan_for``;
-    where that needs rosbags, none)."""
+    where that needs rosbags, none), and of a detection array its elements (``fastdecode.item_plan_for``): what
+    :func:`.decode.column_duplicates` tells a duplicate by, as the run does."""
     planned = {}
     for topic, (meta, conns) in table.items():
         if meta.count and meta.msgtype in reader.typestore.fielddefs and has_header(reader, meta.msgtype):
             plan = plan_for(reader.typestore, meta.msgtype, reader.is2) if topic in valued else None
-            if plan is not None:  # the stated covariances are not looked at here: every column as a number
+            if plan is None:
+                plan = item_plan_for(reader.typestore, meta.msgtype, reader.is2)
+            if plan is not None and plan.stated_from is not None:  # stated covariances: every column as a number
                 plan = dataclasses.replace(plan, stated_from=None)
-            else:
+            elif plan is None:
                 plan = make_plan(reader.typestore, meta.msgtype, (), (FRAME_ID,), cdr=reader.is2)
             if plan is not None:
                 planned[topic] = (conns, plan)
@@ -448,10 +453,9 @@ def _summary(
     names: dict[str, int] = {}
     for name, n in zip(cols.names, frames.tolist(), strict=True):
         names[frame_name(name)] = names.get(frame_name(name), 0) + n
-    pairs = np.stack([t_ns.view(np.uint64), cols.digest]).T
-    distinct = np.unique(pairs, axis=0).shape[0]
-    stamps = np.unique(t_ns).size
     stats = stamp_stats(t_ns, rec_ns)
+    # the run's stamps (record times where the header's are all zero) and its rule
+    duplicates, repeated = column_duplicates(rec_ns if stats.header_clock == "zero" else t_ns, cols)
     order = Cleaning()  # the run's own rules for a clock stepped forward or set back
     if stats.header_clock != "zero":
         order.count_order(t_ns, rec_ns)
@@ -465,9 +469,9 @@ def _summary(
         stamp_end_ns=int(t_ns.max()),
         rate_hz=stats.rate_hz,
         out_of_order=stats.out_of_order,
-        duplicates=t_ns.size - distinct,
+        duplicates=duplicates,
         note=note,
-        repeated_stamps=distinct - stamps if stats.header_clock != "zero" else None,
+        repeated_stamps=repeated if stats.header_clock != "zero" else None,
         header_clock=stats.header_clock,
         offset_s=stats.offset_ns / _NS,
         offset_spread_s=stats.spread_ns / _NS,
@@ -499,7 +503,7 @@ def _problems(t: TopicSummary, pace: float | None) -> list[str]:
     if t.duplicates:
         problems.append(duplicates_text(t.duplicates, t.count - t.duplicates))
     if t.repeated_stamps:
-        problems.append(plural(t.repeated_stamps, "repeated stamp") + " with different content")
+        problems.append(repeated_text(t.repeated_stamps))
     if len(t.frame_ids) > 1:
         problems.append(f"{len(t.frame_ids)} frame ids")
     if t.header_clock == "zero":
@@ -757,7 +761,8 @@ def _seconds(value: float | None, sign: bool = True) -> str:
 TOPIC_LEGEND = (
     "  rate: distinct header stamps per second of the time recorded (gaps left out: intervals over "
     f"{GAP_FACTOR:g}x the median);",
-    "  out-of-order: stamps earlier than the one before (record order); duplicates: same stamp, same bytes;",
+    "  out-of-order: stamps earlier than the one before (record order); duplicates: same stamp, same values, the",
+    "  sequence numbers aside (what a run drops);",
     "  NaN/Inf: messages whose values a run reads (its roles) hold a NaN or Inf: a run drops them ('-': not read);",
     "  stamps: first header stamp [s] and the span to the last [s]",
 )
@@ -767,7 +772,7 @@ CLOCK_LEGEND = (
     "a header clock steps mid-log, or where the stamps are all zero); auto: what time.source: auto reads;",
     "  hdr-rec: median header stamp minus record time; spread: its 5th-95th percentile width; vs ref: hdr-rec minus "
     "the reference's;",
-    "  repeated: stamps repeated with different content; gaps: intervals over "
+    "  repeated: stamps repeated with different values; gaps: intervals over "
     f"{GAP_FACTOR:g}x the median (longest [s]); rate Hz: rate changes (each over {RATE_TOLERANCE:.0%})",
 )
 
