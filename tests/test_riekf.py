@@ -787,7 +787,7 @@ def test_a_saturating_gyros_samples_are_widened_and_an_observer_integrating_them
 
     riekf, batch, fa = report("riekf"), report("batch"), report("fast-adaptation")
     ape = {k: r["ape"]["translation_m"]["rmse"] for k, r in (("riekf", riekf), ("batch", batch))}
-    # riekf within 10x batch's error (3.4x now; 570x before), and not lost
+    # riekf within 10x batch's error (2.2x now: 0.0205 against 0.0092 m; 570x before), and not lost
     assert ape["riekf"] < 10.0 * ape["batch"] and not riekf["convergence"].get("lost"), ape
     assert riekf["convergence"]["own_status"] is None and batch["convergence"]["own_status"] is None
     own = fa["convergence"]["own_status"]

@@ -97,11 +97,11 @@ def gap_levels(stream, vel_t, held, velocity_density=None, gyro_density=None):
 
 def clip_factor(stream, gyro_density) -> np.ndarray:
     """Per time-base sample ``i``, the factor on the gyro's white variance over the interval from sample ``i - 1``
-    to ``i`` where either end lies in a stretch a saturating gyro held its range ``r`` (``AlignedStream.gyro_clipped``,
-    ``gyro_range``), 1 elsewhere: the rate there is off by ``|ω| − r``, unknown beyond the range; taken as up to
-    ``r`` (a true rate up to twice the range, not fitted to a log), the same sign over the whole stretch, a
-    rotation error of ``r × span`` over its ``span`` s (one interval added): :func:`motion_factor` with that spread
-    on every axis against the gyro's density ``gyro_density`` (rad/s/√Hz per axis)."""
+    to ``i`` where either end lies in a stretch a saturating gyro held its range (``AlignedStream.gyro_clipped``),
+    1 elsewhere: the rate there is off by the unknown ``|ω| − range``, taken as up to the stretch's
+    ``AlignedStream.gyro_excess`` ``e`` (the rate's pace into and out of the stretch), the same sign over the whole
+    stretch: a rotation error of ``e × span`` over its ``span`` s (one interval added), :func:`motion_factor` with
+    that spread on every axis against the gyro's density ``gyro_density`` (rad/s/√Hz per axis)."""
     t, clipped = stream.vel_t_ns, getattr(stream, "gyro_clipped", None)
     out = np.ones(t.shape[0])
     if gyro_density is None or clipped is None or clipped.shape[0] == 0 or t.shape[0] < 2:
@@ -110,11 +110,11 @@ def clip_factor(stream, gyro_density) -> np.ndarray:
     first = np.searchsorted(t, clipped[:, 0], side="left")  # the first sample at or after a: the interval ending there
     last = np.searchsorted(t, clipped[:, 1], side="right")  # the first sample after b: the interval starting at b
     step = float(np.median(np.diff(t))) * 1e-9
-    spread = np.full(3, stream.gyro_range)
-    for a, b, (ta, tb) in zip(first, last, clipped, strict=True):
+    for a, b, (ta, tb), e in zip(first, last, clipped, stream.gyro_excess, strict=True):
         lo, hi = max(int(a), 1), min(int(b) + 1, t.shape[0])
         if hi > lo:
-            out[lo:hi] = np.maximum(out[lo:hi], motion_factor((tb - ta) * 1e-9 + step, spread, gyro_density))
+            f = motion_factor((tb - ta) * 1e-9 + step, np.full(3, e), gyro_density)
+            out[lo:hi] = np.maximum(out[lo:hi], f)
     return out
 
 
