@@ -226,10 +226,11 @@ SATURATED_MIN_RUN = 3
 SATURATED_MIN_SHARE = 0.001
 
 
-def gyro_saturated(omega: np.ndarray, topic: str) -> list[str]:
-    """The warning of a gyro whose axes hold their largest absolute reading in stretches (``SATURATED_MIN_RUN``):
-    ``omega`` (N, 3) as read, one row per message."""
-    found = []
+def _held_at_top(omega: np.ndarray) -> tuple[list, list]:
+    """The axes of ``omega`` (N, 3) that hold their largest absolute reading in stretches (``SATURATED_MIN_RUN``,
+    ``SATURATED_MIN_SHARE``): ``(axis, top, held samples, stretches, N)`` each, and each such stretch's first and
+    last row, axis and reading held ``(a, b, k, top)``."""
+    found, rows = [], []
     for k, axis in enumerate("xyz"):
         col = omega[:, k]
         top = max(float(col.max(initial=-np.inf)), -float(col.min(initial=np.inf)))
@@ -241,12 +242,47 @@ def gyro_saturated(omega: np.ndarray, topic: str) -> list[str]:
         n, floor = col.shape[0], max(SATURATED_MIN_RUN, SATURATED_MIN_SHARE * col.shape[0])
         if top <= 0.0 or np.count_nonzero(col == top) + np.count_nonzero(col == -top) < floor:
             continue
-        at = np.abs(col) == top
+        at = np.abs(omega[:, k]) == top  # on the rows as read (a NaN row is not at the top)
         edges = np.flatnonzero(np.diff(np.concatenate([[0], at.view(np.int8), [0]])))
         runs = edges[1::2] - edges[::2]
-        held = int(runs[runs >= SATURATED_MIN_RUN].sum())
+        long = runs >= SATURATED_MIN_RUN
+        held = int(runs[long].sum())
         if held >= SATURATED_MIN_SHARE * n:
-            found.append((axis, top, held, int(np.count_nonzero(runs >= SATURATED_MIN_RUN)), n))
+            found.append((axis, top, held, int(np.count_nonzero(long)), n))
+            rows += [(a, b, k, top) for a, b in zip(edges[::2][long].tolist(), (edges[1::2][long] - 1).tolist())]
+    return found, rows
+
+
+def _clipped_spans(rows: list, t_ns: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The stretches :func:`_held_at_top` found (``rows``) as ``(S, 2)`` int64 ns, their first and last sample
+    (``t_ns`` the stamps of the rows of ``omega`` as read), in time order, and how far each one's true rate may lie
+    beyond the reading held (rad/s): the rate's rise over half the stretch's span before it, or its fall over as
+    long after it, the larger (a rate that rose at that pace and turned back at the middle; 3x the excess of a
+    parabolic peak, the excess of a tent): ``AlignedStream.gyro_clipped``, ``gyro_excess``."""
+    found = np.asarray([(a, b) for a, b, *_ in rows], np.int64)
+    ends = t_ns[found]
+    excess = np.zeros(found.shape[0])
+    by_time = np.argsort(t_ns, kind="stable")
+    ts = t_ns[by_time]
+    for i, (a, b, k, top) in enumerate(rows):
+        half = (int(t_ns[b]) - int(t_ns[a])) // 2
+        # the sample half the span before the first (at or after that time) and half after the last (at or before)
+        j0, j1 = np.searchsorted(ts, t_ns[a] - half), np.searchsorted(ts, t_ns[b] + half, side="right") - 1
+        near = [by_time[j] for j, ok in ((j0, ts[min(j0, ts.shape[0] - 1)] < t_ns[a]), (j1, ts[j1] > t_ns[b])) if ok]
+        held = top if omega[a, k] > 0 else -top  # signed: the rate may come from the other side's range
+        excess[i] = max([abs(held - float(omega[j, k])) for j in near if np.isfinite(omega[j, k])], default=0.0)
+    order = np.argsort(ends[:, 0], kind="stable")
+    return np.sort(ends[order], axis=1), excess[order]
+
+
+def gyro_saturated(omega: np.ndarray, topic: str) -> list[str]:
+    """The warning of a gyro whose axes hold their largest absolute reading in stretches (``SATURATED_MIN_RUN``):
+    ``omega`` (N, 3) as read, one row per message."""
+    return _saturated_words(_held_at_top(omega)[0], topic)
+
+
+def _saturated_words(found: list, topic: str) -> list[str]:
+    """:func:`gyro_saturated`'s warning of the axes :func:`_held_at_top` found."""
     if not found:
         return []
     said = "; ".join(
@@ -403,6 +439,15 @@ class AlignedStream:
     #: riekf carry the pose on the interpolated velocity (riekf's noise widened to the motion's spread,
     #: ``shared_steps.gap_levels``); batch splits them (:func:`unbridged`). ``(B, 2)`` int64 ns, as ``velocity_gaps``.
     bridged_gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    #: The stretches a gyro of its own holds its largest reading in (:func:`gyro_saturated`: its range exceeded), its
+    #: first and last sample each, ``(S, 2)`` int64 ns (none: no gyro clipped), how far each one's rate may lie
+    #: beyond it ``gyro_excess`` (S,) rad/s (:func:`_clipped_spans`), and the largest reading held ``gyro_range``
+    #: (rad/s): those samples are not measurements of the rate, whose error there is ``|ω| − range``. riekf and batch
+    #: widen the gyro's noise over them (``shared_steps.clip_factor``); an observer's verdict says it integrated them
+    #: (``evaluation.report.own_status``).
+    gyro_clipped: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    gyro_excess: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    gyro_range: float = 0.0
     #: The linear velocity's white-noise density as recorded, per axis of its own message (m/s/√Hz; zeros: not
     #: estimated): the run sets it where it estimates it (``run.prepare_log``, the estimators with noise levels),
     #: since the samples interpolated onto the time base show less of it (0.015 for 0.85 on a generated figure 8).
@@ -1131,8 +1176,12 @@ def align(
     if twist is not None and twist.topic != om.topic:
         gyro_turn = _odometry_twist_checks(frame, warn, twist, om, lv, t_om, omega)
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
+    clipped = (np.zeros((0, 2), np.int64), np.zeros(0), 0.0)
     if two_topics:  # a gyro of its own (an odometry's angular velocity is a computed one, often held at set values)
-        frame.notes.extend(gyro_saturated(om.xyz, om.topic))
+        found, rows = _held_at_top(om.xyz)
+        frame.notes.extend(_saturated_words(found, om.topic))
+        if rows:  # the samples beyond the gyro's range: not measurements of the rate (riekf and batch widen them)
+            clipped = (*_clipped_spans(rows, _times(om, frame.time_source), om.xyz), max(r[3] for r in rows))
     topics = _role_topics(om, lv, det)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
@@ -1189,6 +1238,9 @@ def align(
         velocity_gaps=lv_gaps[0],
         velocity_period_ns=lv_gaps[1],
         bridged_gaps=lv_gaps[2],
+        gyro_clipped=clipped[0],
+        gyro_excess=clipped[1],
+        gyro_range=clipped[2],
         accel_blocks=accel_blocks,
     )
 

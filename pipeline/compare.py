@@ -46,7 +46,7 @@ COLUMNS = (
 STATUS_WORDS = (
     "status is failed when the estimator could not run (error says why), its own status when its run's record says "
     "its estimate is off (lost or gated_at_end: riekf's filter; likely_lost: an observer's resightings or velocity "
-    "bias; the Notes say why), else ok"
+    "bias; gyro_clipped: an observer that integrated a saturating gyro's rates; the Notes say why), else ok"
 )
 #: Added after the APE when the batch smoother is compared: each estimator's APE over the smoother's.
 VS_BATCH = "ape_vs_batch"

@@ -596,6 +596,16 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "body_frame": aligned.body_frame,
             "body_frame_from": aligned.body_from,
             "base_frame": aligned.base_frame,
+            # a saturating gyro's stretches (alignment.gyro_saturated): the verdict of an observer integrating them
+            "gyro_clipped": (
+                {
+                    "stretches": int(aligned.gyro_clipped.shape[0]),
+                    "seconds": round(float(np.sum(np.diff(aligned.gyro_clipped, axis=1))) * 1e-9, 3),
+                    "range_rad_s": aligned.gyro_range,
+                }
+                if aligned.gyro_clipped.shape[0]
+                else None
+            ),
             "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
             "derived": dict(streams.derived),
             # every frame pair the readers' warnings name only the first of (decode.frame_pairs)

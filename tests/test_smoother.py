@@ -58,7 +58,18 @@ def random_interval(rng):
     data = np.zeros((3, 75))
     cov = np.zeros((3, 6, 6))
     preintegrate(
-        vel_t, omega, vel, kf_t, b_bar, np.full(3, 1e-6), np.full(3, 1e-4), np.zeros(2), np.ones(vel_t.size), data, cov
+        vel_t,
+        omega,
+        vel,
+        kf_t,
+        b_bar,
+        np.full(3, 1e-6),
+        np.full(3, 1e-4),
+        np.zeros(2),
+        np.ones(vel_t.size),
+        np.ones(vel_t.size),
+        data,
+        cov,
     )
     return vel_t, omega, vel, kf_t, b_bar, data, cov
 
@@ -87,6 +98,7 @@ def test_preintegration_is_the_dead_reckoned_relative_motion_and_its_bias_jacobi
             np.full(3, 1e-4),
             np.zeros(2),
             np.ones(vel_t.size),
+            np.ones(vel_t.size),
             other,
             np.zeros((3, 6, 6)),
         )
@@ -114,7 +126,20 @@ def test_preintegration_widens_the_noise_across_a_gap_in_the_samples_as_riekf_do
 
     def position_variance(gaps, vel_gap) -> float:
         data, cov = np.zeros((1, 75)), np.zeros((1, 6, 6))
-        preintegrate(vel_t, omega, vel, kf_t, np.zeros(6), q_om, q_v, np.asarray(gaps, float), vel_gap, data, cov)
+        preintegrate(
+            vel_t,
+            omega,
+            vel,
+            kf_t,
+            np.zeros(6),
+            q_om,
+            q_v,
+            np.asarray(gaps, float),
+            vel_gap,
+            np.ones(vel_t.size),
+            data,
+            cov,
+        )
         return cov[0, 3, 3] / q_v[0]  # along the motion: the velocity's noise alone (the gyro's turns it aside)
 
     ones = np.ones(vel_t.size)

@@ -27,7 +27,18 @@ def case():
     b_bar = rng.normal(size=6) * 0.01
     data, cov = np.zeros((K - 1, 75)), np.zeros((K - 1, 6, 6))
     preintegrate(
-        vel_t, omega, vel, kf_t, b_bar, np.full(3, 1e-5), np.full(3, 1e-3), np.zeros(2), np.ones(vel_t.size), data, cov
+        vel_t,
+        omega,
+        vel,
+        kf_t,
+        b_bar,
+        np.full(3, 1e-5),
+        np.full(3, 1e-3),
+        np.zeros(2),
+        np.ones(vel_t.size),
+        np.ones(vel_t.size),
+        data,
+        cov,
     )
     data[:, D_W:] = whitening(cov).reshape(-1, 36)
     rot, pos = np.empty((K, 3, 3)), np.empty((K, 3))

@@ -399,7 +399,9 @@ def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
     """What the run's own record (run.json ``metadata``) says of its estimate where that is off, whatever the truth
     says: riekf's ``observer.filter.status`` ``lost`` or ``gated_at_end``, an observer without a gate likely lost
     (``observer.resightings`` or ``observer.velocity_bias``: :func:`.observers.base.lost_evidence`, the rule and the
-    words of its warning); None otherwise. ``status``, the run.json ``field`` it came from, and what it ``said``. The
+    words of its warning), an estimator without noise levels that integrated a saturating gyro's rates as read
+    (``input.gyro_clipped``: its equations assume a gyro that measures the rate; riekf and batch widen the gyro's
+    noise there); None otherwise. ``status``, the run.json ``field`` it came from, and what it ``said``. The
     one place where the report's convergence verdict meets the run's own status (report.json
     ``convergence.own_status``, the converged line, compare's and a batch's notes)."""
     from slamobs.pipeline.observers.base import lost_evidence
@@ -414,6 +416,17 @@ def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
         return {"status": filt["status"], "field": "observer.filter.status", "said": said}
     if found := lost_evidence(observer.get("resightings"), observer.get("velocity_bias")):
         return {"status": "likely_lost", "field": f"observer.{found[0]}", "said": found[1]}
+    if clipped := (metadata.get("input") or {}).get("gyro_clipped"):  # riekf and batch widen the gyro's noise there
+        from slamobs.pipeline.estimators import get_estimator
+
+        if not get_estimator(observer.get("name")).uses_noise:
+            return {
+                "status": "gyro_clipped",
+                "field": "input.gyro_clipped",
+                "said": f"it integrated a saturating gyro's rates as read ({clipped['stretches']} stretches, "
+                f"{clipped['seconds']:.3g} s at ±{clipped['range_rad_s']:.4g} rad/s): it assumes a gyro that "
+                "measures the rate, and turned too little there",
+            }
     return None
 
 

@@ -1588,6 +1588,7 @@ def _advance(
     omega,
     vel,
     vel_gap,
+    om_gap,
     det_t,
     det_offsets,
     det_idx,
@@ -1688,8 +1689,9 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             span = vel_t[iv] - vel_t[iv - 1] if 0 < iv < n_vel else 0.0
             g_om, g_v = gap_factor(span, gap_om), gap_factor(span, gap_v)
-            if 0 < iv < n_vel:  # a gap of the linear velocity's own topic (gap_levels)
+            if 0 < iv < n_vel:  # a gap of the linear velocity's own topic, a clipped gyro's stretch (gap_levels)
                 g_v = max(g_v, vel_gap[iv])
+                g_om = max(g_om, om_gap[iv])
             for c in range(3):
                 qg_om[c], qg_v[c] = qs_om[c] * g_om, qs_v[c] * g_v
             for step in range(m):
@@ -1990,8 +1992,8 @@ class RiEKF(Stepper):
         imu_gyro = getattr(stream, "two_twist_topics", False) and "gyro" not in nz.held and self.planar["held"]
         self.state.ns[_GWALK_FIXED] = int(nz.sources.get("gyro_bias_walk") == "config" or not imu_gyro)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
-        self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(
-            stream, self.vel_t, nz.held, nz.velocity
+        self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap, self.om_gap = gap_levels(
+            stream, self.vel_t, nz.held, nz.velocity, nz.gyro
         )
         self.stats.update({"noise": self.noise.as_dict()})
         self._corr_factors: list[float] = []  # each written stretch's pose covariance factor (:meth:`_widened`)
@@ -2248,6 +2250,7 @@ class RiEKF(Stepper):
             s.omega,
             s.velocity,
             self.vel_gap,
+            self.om_gap,
             self.det_t,
             s.det_offsets,
             s.det_idx,

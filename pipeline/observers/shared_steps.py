@@ -62,7 +62,7 @@ def gap_factor(span, interval):
     return 1.0
 
 
-def gap_levels(stream, vel_t, held, velocity_density=None) -> tuple[float, float, np.ndarray]:
+def gap_levels(stream, vel_t, held, velocity_density=None, gyro_density=None):
     """What :func:`gap_factor` needs for the gyro and the linear velocity of ``stream`` (an ``AlignedStream``,
     ``vel_t`` its time base in s): the median interval of each (0 where the stream is held, ``noise.held``: a held
     command's interval is the command held, not samples missing), and per time-base sample ``i`` the factor of the
@@ -70,15 +70,17 @@ def gap_levels(stream, vel_t, held, velocity_density=None) -> tuple[float, float
     (``AlignedStream.velocity_gaps``: an odometry on a topic of its own, interpolated onto the gyro's stamps, whose
     gap the time base does not show), else 1. Across a bridged gap (``AlignedStream.bridged_gaps``: longer than
     ``limits.max_gap``, the gyro recording through) the factor is at least :func:`motion_factor`'s, given the
-    velocity's white density ``velocity_density`` (m/s/√Hz per axis). Public: riekf and batch's smoother take
-    their gaps from it."""
+    velocity's white density ``velocity_density`` (m/s/√Hz per axis). Last, per sample the gyro's factor over the
+    stretches a saturating gyro held its range (``AlignedStream.gyro_clipped``; 1 elsewhere, and everywhere without
+    ``gyro_density``): :func:`clip_factor`. Public: riekf and batch's smoother take their gaps from it."""
     interval = float(np.median(np.diff(vel_t))) if vel_t.shape[0] > 2 else 0.0
     t = stream.vel_t_ns
     out = np.ones(t.shape[0])
+    om_out = clip_factor(stream, gyro_density) if "gyro" not in held else np.ones(t.shape[0])
     gaps, period = stream.velocity_gaps, stream.velocity_period_ns * 1e-9
     levels = (0.0 if "gyro" in held else interval, 0.0 if "velocity" in held else interval)
     if "velocity" in held or gaps.shape[0] == 0 or t.shape[0] < 2:
-        return *levels, out
+        return *levels, out, om_out
     mid = t[:-1] + (t[1:] - t[:-1]) // 2
     k = np.searchsorted(gaps[:, 0], mid, side="right") - 1
     inside = (k >= 0) & (mid < gaps[np.clip(k, 0, None), 1])
@@ -90,7 +92,30 @@ def gap_levels(stream, vel_t, held, velocity_density=None) -> tuple[float, float
             span = (gaps[g, 1] - gaps[g, 0]) * 1e-9
             factors[g] = max(factors[g], motion_factor(span, spread, velocity_density))
     out[1:][inside] = factors[k[inside]]
-    return *levels, out
+    return *levels, out, om_out
+
+
+def clip_factor(stream, gyro_density) -> np.ndarray:
+    """Per time-base sample ``i``, the factor on the gyro's white variance over the interval from sample ``i - 1``
+    to ``i`` where either end lies in a stretch a saturating gyro held its range (``AlignedStream.gyro_clipped``),
+    1 elsewhere: the rate there is off by the unknown ``|ω| − range``, taken as up to the stretch's
+    ``AlignedStream.gyro_excess`` ``e`` (the rate's pace into and out of the stretch), the same sign over the whole
+    stretch: a rotation error of ``e × span`` over its ``span`` s (one interval added), :func:`motion_factor` with
+    that spread on every axis against the gyro's density ``gyro_density`` (rad/s/√Hz per axis)."""
+    t, clipped = stream.vel_t_ns, getattr(stream, "gyro_clipped", None)
+    out = np.ones(t.shape[0])
+    if gyro_density is None or clipped is None or clipped.shape[0] == 0 or t.shape[0] < 2:
+        return out
+    # the interval ending at sample i (t[i-1], t[i]) touches stretch [a, b] when t[i] >= a and t[i-1] <= b
+    first = np.searchsorted(t, clipped[:, 0], side="left")  # the first sample at or after a: the interval ending there
+    last = np.searchsorted(t, clipped[:, 1], side="right")  # the first sample after b: the interval starting at b
+    step = float(np.median(np.diff(t))) * 1e-9
+    for a, b, (ta, tb), e in zip(first, last, clipped, stream.gyro_excess, strict=True):
+        lo, hi = max(int(a), 1), min(int(b) + 1, t.shape[0])
+        if hi > lo:
+            f = motion_factor((tb - ta) * 1e-9 + step, np.full(3, e), gyro_density)
+            out[lo:hi] = np.maximum(out[lo:hi], f)
+    return out
 
 
 def motion_spread(velocity: np.ndarray) -> np.ndarray:

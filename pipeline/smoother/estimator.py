@@ -686,9 +686,10 @@ class BatchSmoother(Stepper):
         s, k = self.stream, kf_t.shape[0]
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
-        g_om, g_v, vel_gap = gap_levels(s, self.vel_t, nz.held)
+        g_om, g_v, vel_gap, om_gap = gap_levels(s, self.vel_t, nz.held, gyro_density=nz.gyro)
         q_om, q_v = nz.gyro**2, nz.velocity**2
-        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, q_om, q_v, np.array([g_om, g_v]), vel_gap, data, cov)
+        levels = np.array([g_om, g_v])
+        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, q_om, q_v, levels, vel_gap, om_gap, data, cov)
         # intervals across a gap: (almost) no constraint
         cov[across_gaps(kf_t, gaps)] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)

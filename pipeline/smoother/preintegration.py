@@ -78,7 +78,7 @@ def _mmt(a, b):
 
 
 @njit(cache=True)
-def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, gaps, vel_gap, data, cov):
+def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, gaps, vel_gap, om_gap, data, cov):
     """Relative motion over every keyframe interval ``[kf_t[j], kf_t[j+1]]`` at the bias ``b_bar`` (6,).
 
     Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it:
@@ -86,9 +86,9 @@ def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, gaps, vel_gap, data,
     ``q_v`` (3,) are noise densities squared (per axis); across a gap in the samples they take
     :func:`~slamobs.pipeline.observers.shared_steps.gap_factor` as riekf's propagation does (``gaps`` (2,): the
     gyro's and the velocity's median interval, 0 for a held stream; ``vel_gap`` (N,): the factor of the linear
-    velocity's own gap hidden by the alignment over the interval ending at each sample,
-    ``shared_steps.gap_levels``). Fills ``data`` (K−1, 75) in the layout of the ``D_*``
-    offsets (``W`` left empty) and ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
+    velocity's own gap hidden by the alignment over the interval ending at each sample, ``om_gap`` (N,) the gyro's
+    over a saturating gyro's stretches, ``shared_steps.gap_levels``). Fills ``data`` (K−1, 75) in the layout of
+    the ``D_*`` offsets (``W`` left empty) and ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
     """
     n = vel_t.shape[0]
     s = 0
@@ -121,7 +121,7 @@ def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, gaps, vel_gap, data,
                 g_om = g_v = 1.0
                 if s + 1 < n and t >= vel_t[s]:  # inside the interval from sample s to s + 1
                     span = vel_t[s + 1] - vel_t[s]
-                    g_om = gap_factor(span, gaps[0])
+                    g_om = max(gap_factor(span, gaps[0]), om_gap[s + 1])
                     g_v = max(gap_factor(span, gaps[1]), vel_gap[s + 1])
                 se3_exp_into(h * w0, h * w1, h * w2, h * v0, h * v1, h * v2, d_r, d_p)
                 so3_jacobians_into(h * w0, h * w1, h * w2, jl, jr)
