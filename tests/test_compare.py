@@ -266,7 +266,7 @@ def test_a_split_landmarks_warning_and_the_maps_size_stand_in_the_comparison(tmp
 
     from slamobs.pipeline import compare
     from slamobs.pipeline.config import NO_TRUTH, parse_config, with_truth
-    from test_robust_reference import second_half, swap_between_candidates
+    from test_robust_reference import ids_swapped, second_half, swap_between_candidates
 
     real = compare.prepare_log
 
@@ -275,8 +275,7 @@ def test_a_split_landmarks_warning_and_the_maps_size_stand_in_the_comparison(tmp
         stream = prepared.aligned
         a, b = np.argsort(np.bincount(stream.det_idx[second_half(stream)]))[-2:]
         late, _ = swap_between_candidates(stream, (a, b))
-        idx = stream.det_idx.copy()
-        idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+        idx = ids_swapped(stream, late, a, b)
         prepared.aligned = replace(stream, det_idx=idx)
         return prepared
 

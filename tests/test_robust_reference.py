@@ -41,6 +41,14 @@ def second_half(stream) -> np.ndarray:
     return t > (stream.det_t_ns[0] + stream.det_t_ns[-1]) // 2
 
 
+def ids_swapped(stream, late: np.ndarray, a: int, b: int) -> np.ndarray:
+    """The detections' landmark indices with landmarks ``a`` and ``b`` swapped where ``late`` (an id reused: the jump
+    checks' tests)."""
+    idx = stream.det_idx.copy()
+    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    return idx
+
+
 def swap_between_candidates(stream, landmarks) -> tuple[np.ndarray, list[int]]:
     """Detections from the first time after the middle at which each of the two ``landmarks``' ids, once their
     detections from then on are swapped, has its change point (its detections before, the first sighting left out
@@ -103,8 +111,7 @@ def test_a_landmark_id_reused_mid_log_for_another_landmark_is_named(log):
     _, stream = log
     late = second_half(stream)
     a, b = np.argsort(np.bincount(stream.det_idx[late]))[-2:]  # the two landmarks seen most after the middle
-    idx = stream.det_idx.copy()
-    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    idx = ids_swapped(stream, late, a, b)
     swapped = replace(stream, det_idx=idx)
     for s, expected in ((stream, []), (swapped, sorted(stream.landmark_ids[[a, b]].tolist()))):
         res = RIEKF.run(s, {}, ObserverOptions(noise=noise()))
@@ -239,8 +246,7 @@ def test_a_reused_landmark_id_is_split_and_the_run_made_again(tmp_path):
     stream = prepared.aligned
     a, b = np.argsort(np.bincount(stream.det_idx[second_half(stream)]))[-2:]  # the two seen most after the middle
     late, change = swap_between_candidates(stream, (a, b))
-    idx = stream.det_idx.copy()
-    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    idx = ids_swapped(stream, late, a, b)
     prepared.aligned = replace(stream, det_idx=idx)
     summary = run_prepared(prepared, tmp_path / "run", config)
     jumps = json.loads((tmp_path / "run" / "run.json").read_text())["observer"]["landmark_jumps"]
@@ -269,8 +275,7 @@ def test_batch_takes_the_jumps_its_riekf_start_shows():
     stream = align(expected_streams(sim))
     late = second_half(stream)
     a, b = np.argsort(np.bincount(stream.det_idx[late]))[-2:]
-    idx = stream.det_idx.copy()
-    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    idx = ids_swapped(stream, late, a, b)
     kf_t = stream.seconds(stream.det_t_ns)
     options = ObserverOptions(noise=noise())
     assert observer_seed("riekf", stream, {}, options, kf_t).landmark_jumps == []
@@ -305,8 +310,7 @@ def test_batch_judges_a_jump_on_its_own_whitened_residuals(tmp_path):
     stream = align(expected_streams(sim))
     late = second_half(stream)
     a, b = np.argsort(np.bincount(stream.det_idx[late]))[-2:]
-    idx = stream.det_idx.copy()
-    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    idx = ids_swapped(stream, late, a, b)
     batch = get_estimator("batch")
     for s, expected in ((stream, []), (replace(stream, det_idx=idx), sorted(stream.landmark_ids[[a, b]].tolist()))):
         res = batch.run(s, {}, ObserverOptions(noise=noise()))
@@ -333,8 +337,7 @@ def test_batch_takes_its_riekf_start_s_jumps_before_its_own(tmp_path, monkeypatc
     stream = prepared.aligned
     a, b = np.argsort(np.bincount(stream.det_idx[second_half(stream)]))[-2:]
     late, _ = swap_between_candidates(stream, (a, b))
-    idx = stream.det_idx.copy()
-    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    idx = ids_swapped(stream, late, a, b)
     prepared.aligned = replace(stream, det_idx=idx)
     other = int(stream.landmark_ids[np.setdiff1d(np.unique(stream.det_idx), [a, b])[0]])
     wrong = {"id": other, "t_ns": int(stream.det_t_ns[stream.det_t_ns.shape[0] // 2]), "before": [10, 1.0]}
