@@ -654,11 +654,11 @@ def extrinsic_turn(c: Consistency) -> dict:
 #: plain logs' APE but overconfident, NEES 89-463, named by nothing) is named when the turn that fits the pairs best
 #: (the odometry's bias fitted, as the offset's cost) is ``SMALL_TURN_MIN_DEG`` to ``SMALL_TURN_MAX_DEG``, fits
 #: ``SMALL_TURN_GAIN`` times better than as read, and each half of the pairs (in time) finds the same turn within
-#: ``SMALL_TURN_HALVES`` of its angle. Generated (stated yaw 3-20 deg off): recovered within 0.7 deg, gains 1.10-8.3,
-#: halves 0.4-0.8 deg apart; right extrinsics: controls 0.1-0.5 deg at 1.00-1.01, TagSLAM 11 / 21 1.2 / 0.2 deg at
-#: 1.06 / 1.01, while MR.CLAM, TagSLAM 22 and the stereo sweep's ground robots fit 16-85 deg at up to 1.5x, their
-#: halves tens of degrees apart (a flat cost). Set from those logs (docs/benchmarks.md, "A camera extrinsic stated a
-#: few degrees off").
+#: ``SMALL_TURN_HALVES`` of its angle. Generated hand-held and flight logs (stated yaw 3-20 deg off): recovered within
+#: 0.7 deg (a figure 8: a fifth short, the velocity's bias taking it), gains 1.10-8.3, halves 0.5-0.9 deg apart; right
+#: extrinsics: controls 0.1-0.6 deg at 1.00-1.01, TagSLAM 11 / 21 1.2 / 0.2 deg at 1.06 / 1.01, while MR.CLAM, TagSLAM
+#: 22 and the stereo sweep's logs fit 0.5-85 deg at up to 1.5x, their halves 7-110 deg apart (a flat cost). Set from
+#: those logs (docs/benchmarks.md, "A camera extrinsic stated a few degrees off").
 SMALL_TURN_GAIN = 1.1
 SMALL_TURN_MIN_DEG = 3.0
 SMALL_TURN_MAX_DEG = 30.0
@@ -1362,8 +1362,17 @@ def camera_turned(offset: dict | None) -> bool:
     turn = offset.get("extrinsic_turn") or {"gain": 0.0}
     if turn["gain"] * TWIST_TURN_TIE < _twist_turn_gain(offset):  # the twist turned fits clearly better
         return False
-    named = turn["gain"] >= EXTRINSIC_TURN_GAIN or bool(offset.get("small_turn"))
-    return named and not _best_misread(offset.get("gyro_misreads") or {})
+    return turn["gain"] >= EXTRINSIC_TURN_GAIN and not _best_misread(offset.get("gyro_misreads") or {})
+
+
+def _small_turn_named(offset: dict) -> dict | None:
+    """The small turn (:func:`small_turn`) the camera's warning names where no axis turn is (:func:`camera_turned`,
+    which it leaves unset: a few degrees do not turn the estimate's frame against the truth's), by its rule: no gyro
+    misread named, the twist turned not clearly better."""
+    small = offset.get("small_turn")
+    if not small or camera_turned(offset) or _best_misread(offset.get("gyro_misreads") or {}):
+        return None
+    return None if small["gain"] * TWIST_TURN_TIE < _twist_turn_gain(offset) else small
 
 
 def _misreads(offset: dict) -> list[tuple[str, str]]:
@@ -1396,14 +1405,14 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     # deg about a horizontal axis: 57-138x on generated figure 8s and ground robots; in deg/s the detections fit
     # turned 2.3-7.1x better), and before the velocity's scale, which a turned camera also upsets
     twist = _twist_turn_gain(offset)
-    if camera_turned(offset):  # found holds the gyro's misread at most: none named here
+    small = _small_turn_named(offset)
+    if camera_turned(offset) or small:  # found holds the gyro's misread at most: none named here
         alike = (
             f", or the odometry's twist given in a frame turned from the body's (a robot driving backwards: the pairs "
             f"fit its twist turned {twist:.3g}x better; on this motion the two fit alike)"
             if twist
             else ""
         )
-        small = offset.get("small_turn") if turn["gain"] < EXTRINSIC_TURN_GAIN else None
         how = (
             "its stated rotation a few degrees off: the estimates stay near, their uncertainty too small, NEES high"
             if small
