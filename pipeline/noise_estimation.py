@@ -482,17 +482,23 @@ def robust_scale(tri: Triplets, ratio: float = 1.0) -> float:
     return s2
 
 
+def _first_fit(tri: Triplets, ratio: float, robust: bool) -> np.ndarray:
+    """The triplets a law's first fit reads (:func:`_fit_law`): within 4 σ of their range quantile's robust scale
+    (:func:`_robust_start`), or with ``robust`` False those that are not gross outliers (:func:`_not_gross`). The
+    same for every law: computed once per set of triplets."""
+    return _robust_start(tri, ratio) if robust else _not_gross(tri)
+
+
 def _fit_law(
-    tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3, ratio: float = 1.0, robust: bool = True
+    tri: Triplets, power: int, theta0: np.ndarray, first: np.ndarray, rounds: int = 3, ratio: float = 1.0
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Variance-component estimation of one law: Fisher scoring on the triplets within 4 σ of their range
-    quantile's robust scale (:func:`_robust_start`; with ``robust`` False those that are not gross outliers,
-    :func:`_not_gross`), then outliers beyond ``OUTLIER_SIGMAS`` of the fitted law dropped (:func:`_inliers`, at
-    the range/bearing ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean log-likelihood per
-    component and the inlier mask."""
+    """Variance-component estimation of one law: Fisher scoring on the triplets ``first`` (:func:`_first_fit`),
+    then outliers beyond ``OUTLIER_SIGMAS`` of the fitted law dropped (:func:`_inliers`, at the range/bearing
+    ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean log-likelihood per component and the inlier
+    mask."""
     theta = np.maximum(np.asarray(theta0, float), 0.0)
     e2 = tri.e * tri.e  # (K, 3)
-    inl = _robust_start(tri, ratio) if robust else _not_gross(tri)
+    inl = first
     for _ in range(rounds):
         for _ in range(30):
             v, jac = _variance(theta, tri, power)
@@ -540,10 +546,8 @@ def detection_law(tri: Triplets, seed: int = 0, ratio: float = 1.0, robust: bool
         return None
     tri, gen = fitted
     start = _robust_sigma(tri.e.ravel()[:, None])[0] / np.sqrt(np.mean(tri.c2.sum(axis=1)))
-    fits = {
-        name: _fit_law(tri, power, np.array([start, 0.0]), ratio=ratio, robust=robust)
-        for name, (power, _) in LAWS.items()
-    }
+    first = _first_fit(tri, ratio, robust)
+    fits = {name: _fit_law(tri, power, np.array([start, 0.0]), first, ratio=ratio) for name, (power, _) in LAWS.items()}
     best = max(fits, key=lambda name: fits[name][1])
     other = min(fits, key=lambda name: fits[name][1])
     theta, ll, inl = fits[best]
@@ -552,7 +556,7 @@ def detection_law(tri: Triplets, seed: int = 0, ratio: float = 1.0, robust: bool
     n = tri.e.shape[0]
     for _ in range(BOOTSTRAP):
         sample = _subset(tri, gen.integers(0, n, n))
-        boot.append(_fit_law(sample, power, theta, rounds=1, ratio=ratio, robust=robust)[0])
+        boot.append(_fit_law(sample, power, theta, _first_fit(sample, ratio, robust), rounds=1, ratio=ratio)[0])
     se = np.std(np.array(boot), axis=0, ddof=1)
     used = int(np.count_nonzero(inl))
     method = (
