@@ -275,14 +275,9 @@ def _clipped_spans(rows: list, t_ns: np.ndarray, omega: np.ndarray) -> tuple[np.
     return np.sort(ends[order], axis=1), excess[order]
 
 
-def gyro_saturated(omega: np.ndarray, topic: str) -> list[str]:
-    """The warning of a gyro whose axes hold their largest absolute reading in stretches (``SATURATED_MIN_RUN``):
-    ``omega`` (N, 3) as read, one row per message."""
-    return _saturated_words(_held_at_top(omega)[0], topic)
-
-
 def _saturated_words(found: list, topic: str) -> list[str]:
-    """:func:`gyro_saturated`'s warning of the axes :func:`_held_at_top` found."""
+    """The warning of a gyro on ``topic`` whose axes hold their largest absolute reading in stretches: the axes
+    :func:`_held_at_top` found (``SATURATED_MIN_RUN``, ``SATURATED_MIN_SHARE``)."""
     if not found:
         return []
     said = "; ".join(
@@ -439,7 +434,7 @@ class AlignedStream:
     #: riekf carry the pose on the interpolated velocity (riekf's noise widened to the motion's spread,
     #: ``shared_steps.gap_levels``); batch splits them (:func:`unbridged`). ``(B, 2)`` int64 ns, as ``velocity_gaps``.
     bridged_gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
-    #: The stretches a gyro of its own holds its largest reading in (:func:`gyro_saturated`: its range exceeded), its
+    #: The stretches a gyro of its own holds its largest reading in (:func:`_held_at_top`: its range exceeded), its
     #: first and last sample each, ``(S, 2)`` int64 ns (none: no gyro clipped), how far each one's rate may lie
     #: beyond it ``gyro_excess`` (S,) rad/s (:func:`_clipped_spans`), and the largest reading held ``gyro_range``
     #: (rad/s): those samples are not measurements of the rate, whose error there is ``|ω| − range``. riekf and batch

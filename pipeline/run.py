@@ -596,7 +596,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "body_frame": aligned.body_frame,
             "body_frame_from": aligned.body_from,
             "base_frame": aligned.base_frame,
-            # a saturating gyro's stretches (alignment.gyro_saturated): the verdict of an observer integrating them
+            # a saturating gyro's stretches (AlignedStream.gyro_clipped): the verdict of an observer integrating them
             "gyro_clipped": (
                 {
                     "stretches": int(aligned.gyro_clipped.shape[0]),
