@@ -117,13 +117,19 @@ def extent_words(conv: dict[str, Any]) -> tuple[float | None, str, str]:
     return scene, "scene's extent", how
 
 
+def _extent_phrase(conv: dict[str, Any]) -> tuple[float | None, str, str]:
+    """:func:`extent_words` as report.md's sentences say it: the extent, whose ("trajectory's own extent" for the
+    path's) and how it is measured."""
+    extent, name, how = extent_words(conv)
+    return extent, "trajectory's own extent" if name == "path's extent" else name, how
+
+
 def _coarse(conv: dict[str, Any]) -> str:
     """What a converged (or recurring) figure adds when its level is a sizeable share of the motion itself."""
     if not conv.get("coarse"):
         return ""
     settled = (conv.get("tail_frame") or conv)["steady_level_m"]
-    extent, name, how = extent_words(conv)
-    whose = "trajectory's own extent" if name == "path's extent" else name
+    extent, whose, how = _extent_phrase(conv)
     return (
         f"; but that level, {settled:.3g} m, is {100 * conv['steady_level_share']:.0f} % of the "
         f"{whose} ({extent:.3g} m {how}): a coarse estimate"
@@ -132,8 +138,7 @@ def _coarse(conv: dict[str, Any]) -> str:
 
 def _not_converged(conv: dict[str, Any]) -> str:
     if conv.get("lost"):
-        extent, name, how = extent_words(conv)
-        whose = "trajectory's own extent" if name == "path's extent" else name
+        extent, whose, how = _extent_phrase(conv)
         return (
             f"not converged (the error level, {conv['steady_level_m']:.3g} m at most over the last "
             f"{round(100 * conv['tail_fraction'])} % of the log, is above the {whose}, "
