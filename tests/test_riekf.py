@@ -765,6 +765,7 @@ def test_a_saturating_gyros_samples_are_widened_and_an_observer_integrating_them
     import json
 
     from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.evaluation.report import validate_report
     from slamobs.pipeline.observers.shared_steps import clip_factor
     from slamobs.pipeline.run import run_log
     from slamobs.pipeline.simulate import expected_streams, simulate
@@ -792,3 +793,5 @@ def test_a_saturating_gyros_samples_are_widened_and_an_observer_integrating_them
     assert riekf["convergence"]["own_status"] is None and batch["convergence"]["own_status"] is None
     own = fa["convergence"]["own_status"]
     assert own["status"] == "gyro_clipped" and own["field"] == "input.gyro_clipped", own
+    for written in (riekf, batch, fa):  # the new status is one report.json's schema allows
+        validate_report(written)
