@@ -340,7 +340,7 @@ ROUND8 = (
     Case(3969, "flight", 90, "flight, camera 0.3 m lever arm", "bag", cam_t=(-0.2, 0.2, -0.1), **R6),
     Case(3970, "handheld", 90, "covariances stated 1e-4x", stated=1e-4, **R6),
     Case(3971, "ground", 180, "ground robot, covariances stated 1e-4x", "ros2", stated=1e-4, **R6),
-    Case(3972, "handheld", 90, "tag id reused by another tag from 45 s", reused_id=(10, 22, 45.0), **R6),
+    Case(3972, "handheld", 90, "id 21 (gone at 38 s) reused by tag 38 from 40 s", reused_id=(21, 38, 40.0), **R6),
     Case(3973, "handheld", 90, "clock back 5 s at 45 s (two recordings)", clock_back=(45.0, 5.0), **R6),
     Case(3974, "ground", 180, "ground, clock back 5 s at 90 s", "bag", clock_back=(90.0, 5.0), **R6),
     Case(3975, "straight", 180, "drives only straight (shuttle)", **R6),
