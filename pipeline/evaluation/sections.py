@@ -253,12 +253,12 @@ def still_stretch_note(ev: TrajectoryEvaluation) -> list[str]:
     alone = float(np.sqrt(np.mean(err**2)))
     if full < STILL_GAIN * alone:
         return []
-    at_still = float(np.mean(ev.translation.errors[still]))
     speed = np.empty(len(p))
     speed[order] = window_speeds(p.t_ref_ns[order], p.est_pos[order])
     moving_speed, still_speed = float(np.median(speed[moving])), float(np.median(speed[still]))
     if moving_speed > 0.0 and still_speed >= FROZEN_SPEED_SHARE * moving_speed:
         return frozen_truth_note(ev, order, still, still_speed / moving_speed)
+    at_still = float(np.mean(ev.translation.errors[still]))
     return [
         f"the truth stands still for {n_still / len(p):.0%} of the paired poses, and the APE weighs a place by the "
         f"time spent there: the estimate is {at_still:.3g} m off where it stood, and over the moving poses alone "
