@@ -92,7 +92,8 @@ class Case:
     # round 7: a rig's mounting, clocks and transport, and scenes at their extremes
     imu_rpy_deg: tuple[float, float, float] | None = None  # the IMU's mounting (its tf_static saying so)
     twist_yaw_deg: float = 0.0  # the twist written in a frame turned this much about z (its frame id unchanged)
-    velocity_scale: float = 1.0  # the twist's linear velocity times this (a wheel radius or scale error)
+    # the twist's linear velocity times this (a wheel radius or scale error), or per body axis (x, y, z)
+    velocity_scale: float | tuple[float, float, float] = 1.0
     odom_clock_s: float = 0.0  # added to the odometry's header stamps (its clock off the IMU's)
     gyro_clip: float = 0.0  # the gyro saturating at this many rad/s per axis
     once: int = 0  # this many landmarks each kept in one detection only
@@ -502,9 +503,9 @@ def misdrawn7(sim, case: Case):
     records in bursts, a late /tf_static, a wrong stated camera extrinsic."""
     rng = np.random.default_rng(case.seed + 13)
     det, imu, odom = sim.detections, sim.imu, sim.odom
-    if case.twist_yaw_deg or case.velocity_scale != 1.0:
+    if case.twist_yaw_deg or np.any(np.asarray(case.velocity_scale) != 1.0):
         turn = rot_z(np.array([np.deg2rad(case.twist_yaw_deg)]))[0]
-        odom = replace(odom, linear=case.velocity_scale * odom.linear @ turn.T)
+        odom = replace(odom, linear=np.asarray(case.velocity_scale) * (odom.linear @ turn.T))
     if case.odom_clock_s:
         odom = replace(odom, t_ns=odom.t_ns + int(round(case.odom_clock_s * 1e9)))
     if case.gyro_clip:
