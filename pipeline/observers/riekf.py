@@ -220,7 +220,7 @@ from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import floor_tilt_row, project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.noise import chi2_quantile, format_level, nees_bounds, stated_above
+from slamobs.pipeline.noise import LEVEL_CHOICE_P, chi2_quantile, format_level, nees_bounds, stated_above
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -2579,20 +2579,15 @@ def innovation_note(rec: dict) -> list[str]:
     ]
 
 
-#: The χ² probability of the likelihood-ratio test a samples' level must pass to replace a stated one (module
-#: docstring, "Stated levels above the samples"; :func:`chosen_level`): the deviance over the stated pass's tested
-#: detections lower by more than its quantile with one degree of freedom per key changed.
-LEVEL_CHOICE_P = 0.99
-
-
 def level_candidates(white) -> list[dict]:
     """The levels riekf tries where a stated covariance is more than ``1 / noise.STATED_LOW`` times above the
     samples' white-noise estimate (``white.above_samples``): the stated (as resolved) first, then every stated key
     above its samples' level (the other key too when it is above by less: with one key tight and the other loose
     riekf did worse than with both as stated, seed=3458 and seed=3626) at the samples' level, then (two keys) each
-    alone; one candidate (the levels as resolved) elsewhere. Each:
+    alone; one candidate (the levels as resolved) elsewhere. A key whose odometry's own drift supports its stated
+    level (``white.disputed()``, ``noise.drift_evidence``) is not tried. Each:
     ``which`` (key -> "stated" or "samples") and ``noise`` (the white levels, the swapped keys' source saying so)."""
-    keys = list(white.above_samples)
+    keys = white.disputed()
     if not any(stated_above(getattr(white, k), white.above_samples[k]) is not None for k in keys):
         return [{"which": {}, "noise": white}]
     subsets = [(), tuple(keys)] + ([(k,) for k in keys] if len(keys) > 1 else [])
