@@ -714,8 +714,9 @@ def drift_evidence(poses, velocity, stated, samples) -> dict | None:
     """A stated velocity level above the samples' white-noise estimate tested on what an odometry message carries
     besides its twist, its pose: over disjoint windows of the longest of :data:`DRIFT_HORIZONS_S` the stream holds
     :data:`DRIFT_WINDOWS` of, the twist integrated minus the messages' own displacement
-    (:func:`.noise_estimation.twist_drift`) is, for a white velocity noise of density ``q`` per body axis, a random
-    walk ``N(0, q² τ)`` per axis. The deviance ``Σ log(q² τ) + d² / (q² τ)`` at the stated level and at the samples'
+    (:func:`.noise_estimation.twist_drift`), less a constant body-frame bias (the one riekf and batch estimate,
+    fitted at each level), is, for a white velocity noise of density ``q`` per body axis, a random walk
+    ``N(0, q² τ)`` per axis. The deviance ``Σ log(q² τ) + d² / (q² τ)`` at the stated level and at the samples'
     is compared: ``stated`` is True where the samples' is higher by more than the χ² quantile ``LEVEL_CHOICE_P``
     (one degree of freedom), the stated level then right over the horizons a filter dead-reckons (a VIO's coloured
     twist, its pose corrected by vision). A pose that is the twist's own integral (a wheel odometry's) leaves
@@ -728,17 +729,23 @@ def drift_evidence(poses, velocity, stated, samples) -> dict | None:
     if not fits:
         return None
     horizon = fits[-1]
-    diffs, spans = twist_drift(poses.t_ns, velocity.xyz, poses.position, poses.quat_xyzw, horizon)
+    diffs, spans, gains = twist_drift(poses.t_ns, velocity.xyz, poses.position, poses.quat_xyzw, horizon)
     if diffs.shape[0] < DRIFT_WINDOWS or not np.all(np.isfinite(diffs)):
         return None
 
-    def deviance(q) -> float:
+    def deviance(q) -> tuple[float, np.ndarray]:
+        # the constant bias riekf and batch estimate (its prior wide) fitted at this level and taken out first
         var = np.maximum(np.asarray(q, dtype=float) ** 2, 1e-300)[None, :] * spans[:, None]
-        return float(np.sum(np.log(var) + diffs**2 / var))
+        weighted = gains / var[:, :, None]
+        bias = np.linalg.lstsq(
+            np.einsum("wai,waj->ij", gains, weighted), np.einsum("wai,wa->i", weighted, diffs), rcond=None
+        )[0]
+        left = diffs - np.einsum("wai,i->wa", gains, bias)
+        return float(np.sum(np.log(var) + left**2 / var)), left
 
-    stated_dev, samples_dev = deviance(stated), deviance(samples)
+    (stated_dev, left), (samples_dev, _) = deviance(stated), deviance(samples)
     threshold = chi2_quantile(LEVEL_CHOICE_P, 1)
-    density = np.sqrt(np.mean(diffs**2 / spans[:, None], axis=0))
+    density = np.sqrt(np.mean(left**2 / spans[:, None], axis=0))  # the stated level's bias taken out
     return {
         "topic": poses.topic,
         "horizon_s": horizon,
@@ -759,8 +766,8 @@ def drift_judgement(rec: dict) -> str:
     )
     return (
         f"the twist integrated over {rec['windows']} windows of {rec['horizon_s']:g} s drifts from {rec['topic']}'s "
-        f"own poses as a density {format_level(_plain(rec['density']))} (the deviance of that drift {gain:.3g} "
-        f"lower at the stated level than at the samples', χ² quantile at {LEVEL_CHOICE_P:.0%} "
+        f"own poses, a constant bias taken out, as a density {format_level(_plain(rec['density']))} (the deviance "
+        f"of that drift {gain:.3g} lower at the stated level than at the samples', χ² quantile at {LEVEL_CHOICE_P:.0%} "
         f"{rec['threshold']:.3g}): {what}"
     )
 
