@@ -142,8 +142,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   pass, after the walk's and the bias priors' restarts below have run at its levels (a pass that lost the track says
   nothing of the levels: TagSLAM test_22's first, 48 detections in a row gated at either velocity level); the chosen
   one's are run again. run.json ``observer.filter.stated_levels`` and a note say which level was used and why
-  (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). Nowhere else does
-  anything change.
+  (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). A key whose
+  odometry's own poses support its stated level (``noise.drift_evidence``: the twist's long-horizon drift from them,
+  a constant bias taken out) is not tried (``NoiseSettings.disputed``). Nowhere else does anything change.
 * Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
   by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
