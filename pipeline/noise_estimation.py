@@ -932,9 +932,6 @@ def twist_drift(
     world = np.einsum("nij,nj->ni", rots, np.asarray(linear, dtype=np.float64))
     step = np.diff(t)
     moved = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (world[1:] + world[:-1]) * step[:, None], axis=0)])
-    turned = np.concatenate(
-        [np.zeros((1, 3, 3)), np.cumsum(0.5 * (rots[1:] + rots[:-1]) * step[:, None, None], axis=0)]
-    )
     big = np.concatenate([[0], np.cumsum(step > 0.25 * horizon_s)])
     diffs, spans, gains = [], [], []
     i = 0
@@ -946,7 +943,8 @@ def twist_drift(
             d = (moved[j] - moved[i]) - (position[j] - position[i])
             diffs.append(rots[i].T @ d)
             spans.append(t[j] - t[i])
-            gains.append(rots[i].T @ (turned[j] - turned[i]))
+            turned = np.einsum("k,kab->ab", 0.5 * step[i:j], rots[i:j] + rots[i + 1 : j + 1])  # this window's only
+            gains.append(rots[i].T @ turned)
         i = j
     return (
         np.asarray(diffs, dtype=float).reshape(-1, 3),
