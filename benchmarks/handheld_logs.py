@@ -312,7 +312,22 @@ CLIPPED = (
     Case(3861, "handheld", 90, "gyro clipped at 2 rad/s", wobble=0.6, gyro_clip=2.0, **R6),
     Case(3862, "flight", 90, "flight, gyro clipped at 1 rad/s", "ros2", wobble=0.6, gyro_clip=1.0, **R6),
 )
-SETS = {"round4": CASES, "round5": ROUND5, "round6": ROUND6, "round7": ROUND7, "clipped": CLIPPED}
+#: a saturating gyro's held stretches filled (session 36, docs/benchmarks.md "A saturating gyro's stretches filled"):
+#: flights and ground robots, clips of 0.2-3 rad/s, short and long stretches, quiet and noisy gyros, and clips only
+#: one side of the rate reaches (a flight's yaw rate +1.57/-1.16 rad/s, a loop's +0.25/-0.04)
+CLIPPED2 = (
+    Case(3950, "flight", 90, "flight, gyro clipped at 0.5 rad/s", wobble=0.6, gyro_clip=0.5, **R6),
+    Case(3951, "flight", 90, "flight, quiet gyro clipped at 1.2, one side", "ros2", gyro_x=3, gyro_clip=1.2, **R6),
+    Case(3952, "ground", 180, "ground robot, quiet gyro clipped at 0.25 rad/s", "bag", gyro_x=3, gyro_clip=0.25, **R6),
+    Case(3953, "loop", 120, "loop, gyro clipped at 0.2 rad/s (one side)", gyro_clip=0.2, **R6),
+    Case(3954, "handheld", 90, "hand-held, gyro clipped at 1.2 rad/s (short stretches)", gyro_clip=1.2, **R6),
+    Case(3955, "handheld", 60, "hand-held, quiet gyro clipped at 0.5 rad/s", wobble=0.6, gyro_x=3, gyro_clip=0.5, **R6),
+    Case(3956, "handheld", 90, "hand-held, gyro clipped at 3 rad/s (never reached)", wobble=0.6, gyro_clip=3.0, **R6),
+    Case(3957, "flight", 90, "flight, 100 Hz gyro clipped at 0.8 rad/s", "bag", imu_hz=100, odom_hz=10, gyro_clip=0.8),
+    Case(3958, "handheld", 90, "hand-held, quiet gyro clipped at 2 rad/s", wobble=0.6, gyro_x=1, gyro_clip=2.0, **R6),
+    Case(3959, "ground", 180, "ground robot, gyro clipped at 0.2 rad/s", "ros2", gyro_clip=0.2, **R6),
+)
+SETS = {"round4": CASES, "round5": ROUND5, "round6": ROUND6, "round7": ROUND7, "clipped": CLIPPED, "clipped2": CLIPPED2}
 
 
 def spin_trajectory(t):

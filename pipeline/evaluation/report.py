@@ -399,11 +399,12 @@ def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
     """What the run's own record (run.json ``metadata``) says of its estimate where that is off, whatever the truth
     says: riekf's ``observer.filter.status`` ``lost`` or ``gated_at_end``, an observer without a gate likely lost
     (``observer.resightings`` or ``observer.velocity_bias``: :func:`.observers.base.lost_evidence`, the rule and the
-    words of its warning), an estimator without noise levels that integrated a saturating gyro's rates as read
-    (``input.gyro_clipped``: its equations assume a gyro that measures the rate; riekf and batch widen the gyro's
-    noise there); None otherwise. ``status``, the run.json ``field`` it came from, and what it ``said``. The
-    one place where the report's convergence verdict meets the run's own status (report.json
-    ``convergence.own_status``, the converged line, compare's and a batch's notes)."""
+    words of its warning), an estimator without noise levels that integrated a saturating gyro's held stretches
+    as the alignment filled them (``input.gyro_clipped``: its equations assume a gyro that measures the rate; riekf
+    and batch widen the gyro's noise there by what the fill may be off by); None otherwise. ``status``, the
+    run.json ``field`` it came from, and what it ``said``. The one place where the report's convergence verdict
+    meets the run's own status (report.json ``convergence.own_status``, the converged line, compare's and a batch's
+    notes)."""
     from slamobs.pipeline.observers.base import lost_evidence
 
     observer = metadata.get("observer") or {}
@@ -423,9 +424,10 @@ def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
             return {
                 "status": "gyro_clipped",
                 "field": "input.gyro_clipped",
-                "said": f"it integrated a saturating gyro's rates as read ({clipped['stretches']} stretches, "
-                f"{clipped['seconds']:.3g} s at ±{clipped['range_rad_s']:.4g} rad/s): it assumes a gyro that "
-                "measures the rate, and turned too little there",
+                "said": f"it integrated a saturating gyro's held stretches as the run filled them "
+                f"({clipped['stretches']} stretches, {clipped['seconds']:.3g} s at ±{clipped['range_rad_s']:.4g} "
+                "rad/s; a cubic through the rates entering and leaving each): it assumes a gyro that measures the "
+                "rate, and its turns there are the fit's",
             }
     return None
 

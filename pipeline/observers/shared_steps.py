@@ -98,10 +98,11 @@ def gap_levels(stream, vel_t, held, velocity_density=None, gyro_density=None):
 def clip_factor(stream, gyro_density) -> np.ndarray:
     """Per time-base sample ``i``, the factor on the gyro's white variance over the interval from sample ``i - 1``
     to ``i`` where either end lies in a stretch a saturating gyro held its range (``AlignedStream.gyro_clipped``),
-    1 elsewhere: the rate there is off by the unknown ``|ω| − range``, taken as up to the stretch's
-    ``AlignedStream.gyro_excess`` ``e`` (the rate's pace into and out of the stretch), the same sign over the whole
-    stretch: a rotation error of ``e × span`` over its ``span`` s (one interval added), :func:`motion_factor` with
-    that spread on every axis against the gyro's density ``gyro_density`` (rad/s/√Hz per axis)."""
+    1 elsewhere: the rate the alignment filled there is off by up to the stretch's ``AlignedStream.gyro_excess``
+    ``e`` (a share of the fit's peak beyond the range and of the gyro's spread: ``alignment.CLIP_FIT_SHARE``), the
+    same sign over the whole stretch: a rotation error of ``e × span`` over its ``span`` s (one interval added),
+    :func:`motion_factor` with that spread on every axis against the gyro's density ``gyro_density`` (rad/s/√Hz per
+    axis)."""
     t, clipped = stream.vel_t_ns, getattr(stream, "gyro_clipped", None)
     out = np.ones(t.shape[0])
     if gyro_density is None or clipped is None or clipped.shape[0] == 0 or t.shape[0] < 2:
