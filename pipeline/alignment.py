@@ -281,23 +281,6 @@ def _clip_slope(t_ns: np.ndarray, col: np.ndarray, idx: np.ndarray, top: float, 
     return float(slope), col[idx] - (slope * x + at)
 
 
-def _clip_episodes(rows: list, omega: np.ndarray) -> list:
-    """The held stretches ``rows`` (:func:`_held_at_top`: first and last row, axis, reading held) joined into one
-    where two of one axis and one sign lie fewer samples apart than the shorter of them is long: a noisy gyro's rate
-    above its range for a while dips under it now and then (a generated flight clipped at 0.5 rad/s, its gyro's
-    noise 0.15 rad/s a sample: 720 stretches of a median 5 samples, the rates entering each one its noise)."""
-    out: list = []
-    for a, b, k, top in sorted(rows, key=lambda r: (r[2], r[0])):
-        if out:
-            a0, b0, k0, top0 = out[-1]
-            same = k0 == k and (omega[a0, k] > 0) == (omega[a, k] > 0)
-            if same and a - b0 - 1 < min(b0 - a0 + 1, b - a + 1):
-                out[-1] = (a0, b, k, max(top0, top))
-                continue
-        out.append((a, b, k, top))
-    return out
-
-
 def _clipped_fit(rows: list, t_ns: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The stretches :func:`_held_at_top` found (``rows``) as ``(S, 2)`` int64 ns, their first and last sample
     (``t_ns`` the stamps of the rows of ``omega`` as read), in time order; ``omega`` with each stretch's held
@@ -307,7 +290,6 @@ def _clipped_fit(rows: list, t_ns: np.ndarray, omega: np.ndarray) -> tuple[np.nd
     ``CLIP_FIT_SHARE`` of the fitted peak beyond the range plus ``CLIP_NOISE_SPREADS`` times the samples' spread
     about the two fitted lines):
     ``AlignedStream.gyro_clipped``, the rates the run reads, ``AlignedStream.gyro_excess``."""
-    rows = _clip_episodes(rows, omega)
     found = np.asarray([(a, b) for a, b, *_ in rows], np.int64)
     ends = t_ns[found]
     excess = np.zeros(found.shape[0])
@@ -316,7 +298,6 @@ def _clipped_fit(rows: list, t_ns: np.ndarray, omega: np.ndarray) -> tuple[np.nd
     for i, (a, b, k, top) in enumerate(rows):
         sign = 1.0 if omega[a, k] > 0 else -1.0
         col = omega[:, k]
-        held = sign * col[a : b + 1] >= top  # an episode's dips under the range (the noise) stay as read
         s0, r0 = _clip_slope(t_ns, col, np.arange(a - m, a), top, int(t_ns[a]))
         s1, r1 = _clip_slope(t_ns, col, np.arange(b + 1, b + 1 + m), top, int(t_ns[a]))
         s0, s1 = (s0 if np.isfinite(s0) else -s1), (s1 if np.isfinite(s1) else -s0)
@@ -334,7 +315,7 @@ def _clipped_fit(rows: list, t_ns: np.ndarray, omega: np.ndarray) -> tuple[np.nd
         u = (t_ns[a : b + 1] - t_lo) * 1e-9 / span
         rise, fall = max(sign * s0, 0.0), max(-sign * s1, 0.0)
         beyond = np.maximum(span * (rise * (u**3 - 2.0 * u**2 + u) - fall * (u**3 - u**2)), 0.0)
-        filled[a : b + 1, k] = np.where(held, sign * (top + beyond), col[a : b + 1])
+        filled[a : b + 1, k] = sign * (top + beyond)
         excess[i] = CLIP_FIT_SHARE * float(beyond.max(initial=0.0)) + CLIP_NOISE_SPREADS * noise
     order = np.argsort(ends[:, 0], kind="stable")
     return np.sort(ends[order], axis=1), excess[order], filled
