@@ -591,6 +591,17 @@ def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_p
     assert rows["circle.mcap"]["config_file"] == str(tmp_path / "bad_gains.yaml")
 
 
+def test_a_skipped_log_s_line_names_the_log_and_why_it_was_not_run(logs, tmp_path):
+    """A nightly ``--skip-failed`` batch printed ``[1/1] skipped broken-<key>`` for a log that had failed: neither
+    the log nor that it had failed (the run id of a copy of another log read the same); now both are on the line."""
+    out = tmp_path / "OUT"
+    assert invoke(logs["bad"], "-o", out, "-j", 1).exit_code == 1
+    res = invoke(logs["bad"], "-o", out, "-j", 1, "--skip-failed")
+    assert res.exit_code == 0
+    (line,) = [ln for ln in res.output.splitlines() if ln.startswith("[1/1]")]
+    assert line.split()[1] == "skipped" and f"  {logs['bad']}  (not retried (--skip-failed): " in line
+
+
 def test_no_plots_overrides_every_config_and_report_keeps_to_it(logs, tmp_path):
     """``batch run --no-plots`` (thousands of logs): no figure in any run, a per-log config asking for every figure
     included, and ``slamobs report OUT/runs/<id>`` of such a run draws none either unless given ``--plots``."""
