@@ -177,7 +177,7 @@ def test_moved_log_is_neither_rerun_nor_duplicated_and_hashes_are_cached(tmp_pat
 
 def test_a_copy_under_another_name_in_the_same_first_batch_is_run_and_stored_once(tmp_path):
     # a night's folder held fig8-3991.mcap and a copy of it named unreadable.mcap: the first batch ran both and
-    # stored the same run twice (unreadable-<key> and fig8-3991-<key>, the same poses), as docs/batch.md says a copy never is
+    # stored the same run twice (unreadable-<key> and fig8-3991-<key>, the same poses); docs/batch.md: never twice
     (a,) = make_logs(tmp_path / "in", ["fig8.mcap"])
     shutil.copy(a, tmp_path / "in" / "zz_copy.mcap")
     out = tmp_path / "OUT"
