@@ -340,7 +340,12 @@ def run(
             if msg_dir:
                 config = replace(config, msg_dir=str(msg_dir.resolve()))
             check_config(config)
-            entries = discover(inputs)
+            links: list[Path] = []
+            entries = discover(inputs, links)
+            for link in links if not quiet else ():  # a night's folder of links: say which were not searched
+                click.echo(
+                    f"note: {link}: a symbolic link to a directory, not searched (give it as an input)", err=True
+                )
             options = BatchOptions(
                 out=out_dir,
                 config=config,

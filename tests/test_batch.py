@@ -155,6 +155,30 @@ def test_discover_errors(tmp_path, make, problem):
         discover(make(tmp_path))
 
 
+def test_a_symbolic_link_to_a_directory_is_named_not_silently_skipped(logs, tmp_path):
+    """A night's folder of links (``ln -s /data/flights_0501 nightly/``) ran only the logs linked one by one, and
+    neither the batch's lines nor its error for a folder of directory links only said why the rest were missing."""
+    night = tmp_path / "nightly"
+    night.mkdir()
+    os.symlink(logs["data"] / "a", night / "flights_a")  # a directory of logs: not followed
+    os.symlink(logs["data"] / "b" / "f8_ros2", night / "f8_ros2")  # a rosbag2 directory: that log
+    links: list[Path] = []
+    assert discover([night], links) == [LogEntry(night / "f8_ros2", None)] and links == [night / "flights_a"]
+    os.unlink(night / "f8_ros2")
+    with pytest.raises(InputError, match=f"symbolic links to directories are not searched \\({night / 'flights_a'}\\)"):
+        discover([night])
+    os.symlink(logs["bad"], night / "broken.mcap")
+    res = invoke(night, "-o", tmp_path / "OUT", "-j", 1)
+    assert f"note: {night / 'flights_a'}: a symbolic link to a directory, not searched" in res.output
+
+
+def test_a_log_listed_with_and_without_a_config_says_no_config_not_none(tmp_path):
+    (tmp_path / "a.mcap").write_bytes(b"x")
+    (tmp_path / "list.csv").write_text("log,config\na.mcap,run.yaml\n")
+    with pytest.raises(InputError, match=r"different configs \(no config and "):
+        discover([tmp_path / "a.mcap", tmp_path / "list.csv"])
+
+
 def test_run_id_is_readable_and_from_content_and_config():
     from slamobs.pipeline.batch import run_key
 
