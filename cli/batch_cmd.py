@@ -72,7 +72,9 @@ def _row_line(row: dict, progress) -> str:
     # ok, or its estimator's own status; the log too: TagSLAM's tests all name theirs tag_detections.bag
     if finished(row["status"]):
         return f"{head}  {row['total_s']:.1f} s{tail or '  no truth'}  {row['log']}"
-    return head + tail
+    # skipped: the log too, and why where it is not a finished run (--skip-failed, a copy of another log of the batch)
+    why = f"  ({row['error']})" if row.get("error") else ""
+    return f"{head}{tail}  {row['log']}{why}"
 
 
 class _Reporter:
@@ -338,7 +340,12 @@ def run(
             if msg_dir:
                 config = replace(config, msg_dir=str(msg_dir.resolve()))
             check_config(config)
-            entries = discover(inputs)
+            links: list[Path] = []
+            entries = discover(inputs, links)
+            for link in links if not quiet else ():  # a night's folder of links: say which were not searched
+                click.echo(
+                    f"note: {link}: a symbolic link to a directory, not searched (give it as an input)", err=True
+                )
             options = BatchOptions(
                 out=out_dir,
                 config=config,

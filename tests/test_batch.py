@@ -155,6 +155,30 @@ def test_discover_errors(tmp_path, make, problem):
         discover(make(tmp_path))
 
 
+def test_a_symbolic_link_to_a_directory_is_named_not_silently_skipped(logs, tmp_path):
+    """A night's folder of links (``ln -s /data/flights_0501 nightly/``) ran only the logs linked one by one, and
+    neither the batch's lines nor its error for a folder of directory links only said why the rest were missing."""
+    night = tmp_path / "nightly"
+    night.mkdir()
+    os.symlink(logs["data"] / "a", night / "flights_a")  # a directory of logs: not followed
+    os.symlink(logs["data"] / "b" / "f8_ros2", night / "f8_ros2")  # a rosbag2 directory: that log
+    links: list[Path] = []
+    assert discover([night], links) == [LogEntry(night / "f8_ros2", None)] and links == [night / "flights_a"]
+    os.unlink(night / "f8_ros2")
+    with pytest.raises(InputError, match=f"symbolic links to directories are not searched \\({night / 'flights_a'}\\)"):
+        discover([night])
+    os.symlink(logs["bad"], night / "broken.mcap")
+    res = invoke(night, "-o", tmp_path / "OUT", "-j", 1)
+    assert f"note: {night / 'flights_a'}: a symbolic link to a directory, not searched" in res.output
+
+
+def test_a_log_listed_with_and_without_a_config_says_no_config_not_none(tmp_path):
+    (tmp_path / "a.mcap").write_bytes(b"x")
+    (tmp_path / "list.csv").write_text("log,config\na.mcap,run.yaml\n")
+    with pytest.raises(InputError, match=r"different configs \(no config and "):
+        discover([tmp_path / "a.mcap", tmp_path / "list.csv"])
+
+
 def test_run_id_is_readable_and_from_content_and_config():
     from slamobs.pipeline.batch import run_key
 
@@ -589,6 +613,17 @@ def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_p
     assert rows["not_there.mcap"]["error"].endswith("not_there.mcap: no such file or directory")
     assert rows["circle.mcap"]["error"].startswith(f"{tmp_path / 'bad_gains.yaml'}: gains.fast-adaptation: gain k_p")
     assert rows["circle.mcap"]["config_file"] == str(tmp_path / "bad_gains.yaml")
+
+
+def test_a_skipped_log_s_line_names_the_log_and_why_it_was_not_run(logs, tmp_path):
+    """A nightly ``--skip-failed`` batch printed ``[1/1] skipped broken-<key>`` for a log that had failed: neither
+    the log nor that it had failed (the run id of a copy of another log read the same); now both are on the line."""
+    out = tmp_path / "OUT"
+    assert invoke(logs["bad"], "-o", out, "-j", 1).exit_code == 1
+    res = invoke(logs["bad"], "-o", out, "-j", 1, "--skip-failed")
+    assert res.exit_code == 0
+    (line,) = [ln for ln in res.output.splitlines() if ln.startswith("[1/1]")]
+    assert line.split()[1] == "skipped" and f"  {logs['bad']}  (not retried (--skip-failed): " in line
 
 
 def test_no_plots_overrides_every_config_and_report_keeps_to_it(logs, tmp_path):

@@ -175,6 +175,18 @@ def test_moved_log_is_neither_rerun_nor_duplicated_and_hashes_are_cached(tmp_pat
     assert len(rows) == 4 and rows[rid]["log"] == str(moved) and rows[again.rows[0]["run_id"]]["log"] == str(a)
 
 
+def test_a_copy_under_another_name_in_the_same_first_batch_is_run_and_stored_once(tmp_path):
+    # a night's folder held fig8-3991.mcap and a copy of it named unreadable.mcap: the first batch ran both and
+    # stored the same run twice (unreadable-<key> and fig8-3991-<key>, the same poses); docs/batch.md: never twice
+    (a,) = make_logs(tmp_path / "in", ["fig8.mcap"])
+    shutil.copy(a, tmp_path / "in" / "zz_copy.mcap")
+    out = tmp_path / "OUT"
+    res = batch([tmp_path / "in"], out)
+    assert [r["status"] for r in res.rows] == ["ok", "skipped"]
+    assert res.rows[1]["run_id"] == res.rows[0]["run_id"] and str(a) in res.rows[1]["error"]
+    assert list(assert_consistent(out)) == [res.rows[0]["run_id"]]
+
+
 def test_changed_log_replaces_its_run_and_prune_drops_runs_of_gone_logs(tmp_path):
     a, b, c = make_logs(tmp_path / "in", ["a.mcap", "b.mcap", "c.mcap"])
     out = tmp_path / "OUT"

@@ -64,12 +64,13 @@ def _is_manifest(path: Path) -> bool:
     return not (path.name == ROSBAG2_META and "rosbag2_bagfile_information" in path.read_text(errors="replace"))
 
 
-def _walk(root: Path) -> list[Path]:
+def _walk(root: Path, links: list[Path] | None = None) -> list[Path]:
     """Logs under ``root``: .bag/.mcap/.db3 files, rosbag2 directories and split recordings (directories whose files
     are the ``NAME_N`` parts of one recording, :func:`is_split_recording`), neither descended into, so their files
     are not counted again (a directory without metadata.yaml and one storage file is walked and that file found).
 
-    Hidden names are skipped: they are other tools' temporary files (e.g. a log still being written).
+    Hidden names are skipped: they are other tools' temporary files (e.g. a log still being written). Symbolic links
+    to directories other than a log are not followed (a link may loop); they are added to ``links`` when given.
     """
     found: list[Path] = []
     for here, dirs, files in os.walk(root, followlinks=False):
@@ -80,6 +81,9 @@ def _walk(root: Path) -> list[Path]:
                 continue
             if is_rosbag2_dir(base / d) or is_split_recording(base / d):
                 found.append(base / d)
+            elif (base / d).is_symlink():
+                if links is not None:
+                    links.append(base / d)
             else:
                 descend.append(d)
         dirs[:] = descend
@@ -119,7 +123,7 @@ def check_openable(path: Path) -> os.stat_result:
     return st
 
 
-def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
+def _expand(path: Path, config: Path | None, origin: str, links: list[Path] | None = None) -> list[LogEntry]:
     """A path given on the command line or by a glob: a log, a directory to search, or a manifest."""
     try:
         check_openable(path)
@@ -128,7 +132,7 @@ def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
     if is_rosbag2_dir(path) or is_split_recording(path):
         return [LogEntry(path, config)]
     if path.is_dir():
-        return [LogEntry(p, config) for p in _walk(path)]
+        return [LogEntry(p, config) for p in _walk(path, links)]
     if path.is_file():
         if path.name == ROSBAG2_META and not _is_manifest(path):
             return [LogEntry(path.parent, config)]
@@ -139,8 +143,9 @@ def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
     raise InputError(path, f"{origin}: not a log (.bag, .mcap, .db3, rosbag2 directory) or a manifest (.csv, .yaml)")
 
 
-def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
-    """All logs named by ``inputs``, in input order, each once.
+def discover(inputs: Sequence[str | Path], links: list[Path] | None = None) -> list[LogEntry]:
+    """All logs named by ``inputs``, in input order, each once; the symbolic links to directories found in a
+    directory searched, and not followed, are added to ``links`` when given.
 
     Raises:
         InputError: A missing input, an unreadable manifest, a log listed twice with different configs,
@@ -148,6 +153,7 @@ def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
 
     """
     entries: list[LogEntry] = []
+    unfollowed: list[Path] = []
     for item in inputs:
         text = str(item)
         if not Path(text).exists() and _is_glob(text):
@@ -158,12 +164,18 @@ def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
                 if is_rosbag2_dir(m.parent) or (m.is_file() and is_split_recording(m.parent)):
                     m = m.parent  # a file inside a rosbag2 directory (or a split recording) stands for that one log
                 if m.is_dir() or m.suffix.lower() in LOG_SUFFIXES + MANIFEST_SUFFIXES:
-                    entries.extend(_expand(m, None, "input"))
+                    entries.extend(_expand(m, None, "input", unfollowed))
         else:
-            entries.extend(_expand(Path(text), None, "input"))
+            entries.extend(_expand(Path(text), None, "input", unfollowed))
     unique = _dedupe(entries)
     if not unique:
-        raise InputError(" ".join(map(str, inputs)), "no logs found (.bag, .mcap or rosbag2 directories)")
+        problem = "no logs found (.bag, .mcap or rosbag2 directories)"
+        if unfollowed:
+            shown = ", ".join(map(str, unfollowed[:3])) + (", ..." if len(unfollowed) > 3 else "")
+            problem += f"; symbolic links to directories are not searched ({shown}): give them as inputs"
+        raise InputError(" ".join(map(str, inputs)), problem)
+    if links is not None:
+        links.extend(unfollowed)
     return unique
 
 
@@ -179,7 +191,10 @@ def _dedupe(entries: Iterable[LogEntry]) -> list[LogEntry]:
         key = os.path.realpath(e.path)  # never raises (Path.resolve does on a symbolic link loop)
         first = seen.setdefault(key, e)
         if first.config != e.config and _resolve(first.config) != _resolve(e.config):
-            raise InputError(e.path, f"listed twice with different configs ({first.config} and {e.config})")
+            raise InputError(
+                e.path,
+                f"listed twice with different configs ({first.config or 'no config'} and {e.config or 'no config'})",
+            )
     return list(seen.values())
 
 

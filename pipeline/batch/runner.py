@@ -242,7 +242,8 @@ def _identify(
         if isinstance(chash, InputError):
             return _Planned(log, row=failed_row(stub, str(InputError(entry.path, chash.problem))), path_id=path_id)
         key = run_key(chash, cfg_hash)
-        rid = by_key.get(key) or run_id_for(named, key)
+        # the first log of a (content, config) names its run: a copy under another name in this batch is that run
+        rid = by_key.setdefault(key, run_id_for(named, key))
         return _Planned(
             log,
             task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash, stat_key=skey),
@@ -302,8 +303,7 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
             plan.rows[pos] = {
                 **base_row(task),
                 "status": "skipped",
-                "error": None,
-                "warnings": f"same content and config as {first[rid]}",
+                "error": f"same content and config as {first[rid]} (run {rid})",
             }
             continue
         first[rid] = p.log
