@@ -1532,3 +1532,77 @@ def test_a_twist_turned_from_the_body_is_named(scenario):
     if scenario == "handheld":  # the twist's turn alone, its axis named; the camera not
         assert "with its twist turned by 180 deg about the body's z" in said[0], said
         assert "camera" not in said[0] and record["camera_turned"] is False, said
+
+
+def moved_late(stream, late: np.ndarray, lid: int, shift) -> np.ndarray:
+    """A simulated figure-8 log's body-frame ``det_y`` with landmark ``lid``'s detections where ``late`` as if it
+    had been moved by ``shift`` (m, world frame): each one plus Rᵀ shift, R the scenario's true attitude then."""
+    from slamobs.pipeline.simulate.scenarios import get_scenario
+    from slamobs.pipeline.simulate.sensors import EPOCH_NS
+
+    t = np.repeat(stream.det_t_ns, np.diff(stream.det_offsets))
+    sel = late & (stream.landmark_ids[stream.det_idx] == lid)
+    rot = get_scenario("figure8").sample((t[sel] - EPOCH_NS) * 1e-9).R
+    y = stream.det_y.copy()
+    y[sel] += np.einsum("nji,j->ni", rot, np.asarray(shift, float))
+    return y
+
+
+def test_landmark_moves_names_a_step_in_one_landmark_s_places_and_nothing_in_noise():
+    """The change-point test on where each detection puts its landmark (``landmark_moves``): a landmark whose
+    detections from the 120th on (10 Hz) sit 0.1 m off (σ 0.05 m each) is named at its step with the size within
+    its stated σ; 40 landmarks of noise alone name none. The level is the residuals' own, not the stated law's: with
+    every detection's stated variance 4x too small the step is named at the same F, the noise still unnamed; and a
+    landmark whose block means wander (a pose error over seconds: an offset redrawn every 2 s, 0.1 m) is no move."""
+    from slamobs.pipeline.observers.base import landmark_moves
+
+    rng = np.random.default_rng(7)
+    n, lms, sigma = 200, 40, 0.05
+    ids = np.repeat(np.arange(lms), n)
+    t_ns = np.tile(np.arange(n) * 100_000_000, lms)
+    e = rng.normal(0.0, sigma, (n * lms, 3))
+    stepped = e.copy()
+    stepped[ids == 5] += np.where(np.arange(n)[:, None] >= 120, [0.1, 0.0, 0.0], 0.0)
+    stepped[ids == 5] -= stepped[ids == 5].mean(axis=0)  # the map's place: the mean of its detections
+    w = np.broadcast_to(np.eye(3) / sigma**2, (n * lms, 3, 3))
+    found = []
+    for scale in (1.0, 4.0):  # the stated law right, then its variance 4x too small
+        named, record = landmark_moves(t_ns, ids, stepped, w * scale)
+        assert [j["id"] for j in named] == [5], (named, record)
+        assert named[0]["t_ns"] == 120 * 100_000_000
+        assert abs(named[0]["moved_m"] - 0.1) < 3 * named[0]["moved_sigma_m"]
+        found.append(named[0]["f"])
+        assert landmark_moves(t_ns, ids, e, w * scale)[0] == []
+    assert found[1] == pytest.approx(found[0])  # the level measured: the stated law's scale drops out
+    wander = e.copy()
+    wander[ids == 5] += np.repeat(rng.normal(0.0, 0.1, (n // 20, 3)), 20, axis=0)
+    assert landmark_moves(t_ns, ids, wander, w)[0] == []
+
+
+def test_batch_names_a_landmark_moved_half_a_metre_and_splits_it(tmp_path):
+    """A tag moved 0.5 m mid-log sat at 4-13x the run's usual distance, under the jump ratio's 20x, and the run said
+    nothing (seed=3831, seed=3651, seed=9977; docs/benchmarks.md, "The landmark jump check on batch's own whitened
+    residuals"): batch's change-point test names it at the move, the run splits it and says so with the size;
+    the same log unmoved names nothing."""
+    import json
+
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import prepare_log, run_prepared
+
+    config = parse_config({"observer": "batch", "evaluation": {"plots": False}})
+    prepared = prepare_log(Path(__file__).parents[1] / "sample_logs" / "figure8.mcap", config, directions=False)
+    stream = prepared.aligned
+    late = second_half(stream)
+    lid = int(stream.landmark_ids[np.argmax(np.bincount(stream.det_idx[late]))])
+    moved = replace(stream, det_y=moved_late(stream, late, lid, (0.5, 0.0, 0.0)))
+    for aligned, expected in ((prepared.aligned, []), (moved, [lid])):
+        prepared.aligned = aligned
+        out = tmp_path / f"run{len(expected)}"
+        summary = run_prepared(prepared, out, config)
+        run = json.loads((out / "run.json").read_text())
+        jumps = run["observer"]["landmark_jumps"]
+        assert [j["id"] for j in jumps] == expected, jumps
+        assert [j["id"] for j in run["observer"]["landmark_moves"]] == []  # the run made again: one place each
+        if expected:
+            assert "new_id" in jumps[0] and abs(jumps[0]["moved_m"] - 0.5) < 0.1, jumps
+            assert [n for n in summary.notes if f"batch: landmark {lid} at" in n and "apart (change-point F" in n]

@@ -31,7 +31,7 @@ import numpy as np
 from slamobs.pipeline.alignment import AlignedStream, relabelled, stream_topics
 from slamobs.pipeline.blocks import id_time_order, row_norms3, row_squares3
 from slamobs.pipeline.errors import BadInput, GainError
-from slamobs.pipeline.noise import chi2_quantile
+from slamobs.pipeline.noise import chi2_quantile, f_quantile
 from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED, motion_spread
 
 #: Work units (sub-steps times the landmarks each one touches, plus one per event) a kernel does per call
@@ -584,6 +584,124 @@ def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list
     return out
 
 
+#: A landmark moved mid-log (:func:`landmark_moves`) is named when its change-point statistic passes the F quantile
+#: at ``1 − MOVE_ALPHA`` over the landmarks and split times tried (Bonferroni): the false-alarm rate per run.
+MOVE_ALPHA = 0.01
+#: :func:`landmark_moves` sums each landmark's detections over blocks of this many seconds: the two places' test
+#: weighs the split's difference against how far the block means scatter about their side's mean, the level of the
+#: residuals the run has (a pose error that wanders over seconds is in it), not the stated law's.
+MOVE_BLOCK_S = 1.0
+#: Blocks needed on each side of a split (so the scatter has 3 (blocks − 2) ≥ 12 degrees of freedom).
+MOVE_MIN_BLOCKS = 3
+
+
+def _blocks(t_s: np.ndarray, w: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One landmark's detections (time order) summed over ``MOVE_BLOCK_S`` blocks: Σ W, Σ W e, and each block's
+    χ² about its own mean's zero, gᵀ W⁻¹ g."""
+    starts = np.flatnonzero(np.r_[True, np.diff(np.floor(t_s / MOVE_BLOCK_S)) != 0])
+    wb, gb = np.add.reduceat(w, starts, axis=0), np.add.reduceat(g, starts, axis=0)
+    qb = np.einsum("bi,bi->b", gb, np.linalg.solve(wb + 1e-12 * np.eye(3), gb[:, :, None])[:, :, 0])
+    return wb, gb, qb
+
+
+def _change_points(wb: np.ndarray, gb: np.ndarray, qb: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One landmark's splits at every block boundary (``MOVE_MIN_BLOCKS`` from either end): the first block after
+    each, δ (the mean after minus the mean before), C = A⁻¹ + B⁻¹ (A, B each side's Σ W), δᵀC⁻¹δ, and the blocks'
+    χ² about their side's mean (the scatter, 3 (blocks − 2) degrees of freedom)."""
+    n = wb.shape[0]
+    k = np.arange(MOVE_MIN_BLOCKS, n - MOVE_MIN_BLOCKS + 1)
+    cw, cg, cq = np.cumsum(wb, axis=0), np.cumsum(gb, axis=0), np.cumsum(qb)
+    a, ga = cw[k - 1], cg[k - 1]
+    b, gl = cw[-1] - a, cg[-1] - ga
+    ridge = 1e-12 * np.eye(3)
+    ia, ib = np.linalg.inv(a + ridge), np.linalg.inv(b + ridge)
+    ma, mb = np.einsum("kij,kj->ki", ia, ga), np.einsum("kij,kj->ki", ib, gl)
+    delta, c = mb - ma, ia + ib
+    t = np.einsum("ki,ki->k", delta, np.linalg.solve(c, delta[:, :, None])[:, :, 0])
+    scatter = cq[-1] - np.einsum("ki,ki->k", ga, ma) - np.einsum("ki,ki->k", gl, mb)
+    return k, delta, c, t, scatter
+
+
+def _scatter_along(wb: np.ndarray, gb: np.ndarray, k: int, delta: np.ndarray) -> float:
+    """The blocks' scatter about their side's mean (split before block ``k``) along ``delta``'s direction alone,
+    per degree of freedom: each block mean's offset along it over its σ along it."""
+    u = delta / max(float(np.linalg.norm(delta)), 1e-12)
+    ridge = 1e-12 * np.eye(3)
+    m = np.linalg.solve(wb + ridge, gb[:, :, None])[:, :, 0]
+    side = np.r_[np.zeros(k, bool), np.ones(wb.shape[0] - k, bool)]
+    off = np.empty(wb.shape[0])
+    for s in (~side, side):
+        mean = np.linalg.solve(wb[s].sum(axis=0) + ridge, gb[s].sum(axis=0))
+        off[s] = (m[s] - mean) @ u
+    var = np.einsum("i,bij,j->b", u, np.linalg.inv(wb + ridge), u)
+    return float(np.sum(off**2 / var) / max(wb.shape[0] - 2, 1))
+
+
+def landmark_moves(
+    t_ns: np.ndarray, ids: np.ndarray, e: np.ndarray, w: np.ndarray, alpha: float = MOVE_ALPHA
+) -> tuple[list[dict], dict | None]:
+    """The landmarks whose detections before and after some time disagree on where it is (a landmark moved, an id
+    reused): per landmark, its detections summed over ``MOVE_BLOCK_S`` blocks, each split between blocks tested as
+    two places against one, each detection's residual ``e`` (M, 3: where it puts the landmark minus the map's place,
+    world frame) weighed by its information ``w`` (M, 3, 3: its inverse covariance under the detection law). The
+    statistic is an F: δᵀC⁻¹δ / 3 over the block means' scatter about their side's mean per degree of freedom (the
+    residuals' level as the run has it, the pose's wandering error in it; a two-sample test of means with the
+    variance unknown), against the F(3, 3 (blocks − 2)) quantile at ``1 − alpha`` over every split of every landmark
+    tried (Bonferroni). Each named one as :func:`landmark_jumps` gives it (``id``, ``t_ns``, ``before``/``after`` as
+    [detections, median √d² over the run's]) with ``moved_m`` (|δ|), its σ along δ at that level
+    (``moved_sigma_m``), the statistic ``f``, its ``threshold`` and ``level``, and ``moved`` (the test's name); and
+    the test's record (its ``largest`` F over its threshold and landmark, ``alpha``, ``splits`` tried), None where
+    no landmark had the blocks to test."""
+    t_s = (t_ns - t_ns.min(initial=0)) * 1e-9
+    g = np.einsum("mij,mj->mi", w, e)
+    d = np.sqrt(np.maximum(np.einsum("mi,mi->m", e, g), 0.0))
+    usual = float(np.median(d[d > 0])) if np.any(d > 0) else 1.0
+    order = id_time_order(ids, t_ns)
+    lids, first, seen = np.unique(ids[order], return_index=True, return_counts=True)
+    tests = []
+    for lid, i0, n in zip(lids, first, seen, strict=True):
+        rows = order[i0 : i0 + n]
+        wb, gb, qb = _blocks(t_s[rows], w[rows], g[rows])
+        if wb.shape[0] >= 2 * MOVE_MIN_BLOCKS and n >= 2 * JUMP_MIN_DETECTIONS:
+            tests.append((int(lid), rows, (wb, gb), _change_points(wb, gb, qb)))
+    tried = sum(blocks[0].shape[0] - 2 * MOVE_MIN_BLOCKS + 1 for _, _, blocks, _ in tests)
+    if not tried:
+        return [], None
+    out, nearest = [], {"id": None, "ratio": 0.0}
+    for lid, rows, (wb, gb), (k, delta, c, t, scatter) in tests:
+        dof = 3.0 * (wb.shape[0] - 2)
+        level = np.maximum(scatter, 1e-12) / dof
+        f = t / 3.0 / level
+        best = int(np.argmax(f))
+        along = _scatter_along(wb, gb, int(k[best]), delta[best])
+        if along > level[best]:  # the blocks scatter more along the step than across it: judged at that level
+            level[best] = along
+            f[best] = t[best] / 3.0 / along
+        threshold = f_quantile(1.0 - alpha / tried, 3.0, dof)
+        if f[best] / threshold > nearest["ratio"]:
+            nearest = {"id": lid, "ratio": float(f[best] / threshold)}
+        if f[best] <= threshold:
+            continue
+        starts = np.flatnonzero(np.r_[True, np.diff(np.floor(t_s[rows] / MOVE_BLOCK_S)) != 0])
+        kk, size = int(starts[k[best]]), float(np.linalg.norm(delta[best]))
+        unit = delta[best] / max(size, 1e-12)
+        out.append(
+            {
+                "id": lid,
+                "t_ns": int(t_ns[rows[kk]]),
+                "before": [kk, float(np.median(d[rows[:kk]])) / usual],
+                "after": [int(rows.shape[0]) - kk, float(np.median(d[rows[kk:]])) / usual],
+                "moved": "change-point",
+                "moved_m": size,
+                "moved_sigma_m": float(np.sqrt(level[best] * unit @ c[best] @ unit)),
+                "f": float(f[best]),
+                "threshold": float(threshold),
+                "level": float(level[best]),
+            }
+        )
+    return out, {"largest": nearest, "alpha": alpha, "splits": tried}
+
+
 def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) -> AlignedStream:
     """``aligned`` with the detections of each jumping landmark (:func:`landmark_jumps`) from its jump on given an
     id of their own, the next free one above ``taken`` and the stream's ids (set as each jump's ``new_id``): a
@@ -658,10 +776,16 @@ def _jump_words(j: dict, t0_ns: int) -> str:
             f"{spans}{more}, a median {j['far'][1]:.3g}x the run's usual distance from the map, {j['near'][0]} "
             f"between them {j['near'][1]:.3g}x{new}{_apart_words(j)})"
         )
+    moved = (
+        f"; they put it {j['moved_m']:.3g} ± {j['moved_sigma_m']:.2g} m apart (change-point F {j['f']:.3g} "
+        f"over {j['threshold']:.3g})"
+        if "moved_m" in j
+        else ""
+    )
     return (
         f"{j['id']} at {(j['t_ns'] - t0_ns) / 1e9:.1f} s ({j['before'][0]} detections before it a median "
         f"{j['before'][1]:.3g}x the run's usual distance from the map, {j['after'][0]} after it {j['after'][1]:.3g}x"
-        f"{new}{_apart_words(j)})"
+        f"{moved}{new}{_apart_words(j)})"
     )
 
 

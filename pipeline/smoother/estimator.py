@@ -18,7 +18,7 @@ from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.noise import DETECTION_LAW_KEYS
-from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper, landmark_moves
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother import inverse_depth as idp
@@ -69,6 +69,8 @@ FLOOR_Z = 3.0
 #: (the same solution), docs/benchmarks.md "The floor in batch's graph, session 31 (h-batchfloor)".
 FLOOR_RAMP = (0.0, 0.01, 0.1)
 #: What :meth:`BatchSmoother._solve` changes on the estimator, put back before it runs again without the floor.
+#: Detections :meth:`BatchSmoother._moves` turns into the world frame at a time.
+MOVES_CHUNK = 65_536
 _SOLVE_STATE = ("noise", "det_at", "det_range", "det_shape", "det_factor", "law_notes", "start_jumps")
 
 
@@ -337,7 +339,8 @@ class BatchSmoother(Stepper):
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
         gauge, cov_kf, pose_cov, landmark_cov, (t_cov, c_cov) = _marginals(kf_t, problem, sol)
         # every detection's χ² under the final model (the gated ones too): what the jump check judges
-        every = g.whitened_residuals(replace(problem, **self._detections(kf_of_det)), sol)
+        every_problem = replace(problem, **self._detections(kf_of_det))
+        every = g.whitened_residuals(every_problem, sol)
         self.result = {
             "kf_t": kf_t,
             "kf_of_det": kf_of_det,
@@ -369,6 +372,8 @@ class BatchSmoother(Stepper):
             "time_offset": self.time_offset,
             # a start's (riekf's) innovations jumping: the run splits those landmarks as it does its own
             "start_landmark_jumps": self.start_jumps,
+            # its own detections before and after a time disagreeing on a landmark's place (a landmark moved)
+            **self._moves(every_problem, sol),
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + level_notes
@@ -1152,6 +1157,31 @@ class BatchSmoother(Stepper):
         d2 = np.sum(whitened_residuals(problem, sol) ** 2, axis=1)
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
+
+    def _moves(self, problem, sol) -> dict:
+        """:func:`.landmark_moves` over every detection at the solution (``landmark_moves`` and its record
+        ``landmark_move_test``): each one's residual as where it puts its landmark minus the map's place,
+        ``P + R y − ℓ`` (world frame), and its information ``R (S/σ²) Rᵀ``. Not in inverse depth (its residuals are
+        no places)."""
+        from slamobs.pipeline.smoother import graph as g
+
+        if self.inverse_depth is not None:
+            return {"landmark_moves": [], "landmark_move_test": None}
+        s = self.stream
+        r = g.detection_residuals(problem, sol)
+        e, info = np.empty_like(r), np.empty((r.shape[0], 3, 3))
+        for a in range(0, r.shape[0], MOVES_CHUNK):  # a chunk at a time: an hour's (M, 3, 3) temporaries not held
+            z = slice(a, a + MOVES_CHUNK)
+            rot = sol.rot[problem.kf_of_det[z]]
+            e[z] = -np.einsum("mij,mj->mi", rot, r[z])
+            sig2 = np.maximum(problem.det_sigma[z], 1e-12)[:, None, None] ** 2
+            if problem.det_shape is None:  # isotropic: R I Rᵀ = I
+                info[z] = np.eye(3) / sig2
+            else:
+                info[z] = np.einsum("mij,mjk,mlk->mil", rot, problem.det_shape[z], rot) / sig2
+        t_ns = np.repeat(s.det_t_ns, np.diff(s.det_offsets))
+        moves, record = landmark_moves(t_ns, s.landmark_ids[problem.det_idx], e, info)
+        return {"landmark_moves": moves, "landmark_move_test": record}
 
     def detection_distances(self, det_first: int, det_stop: int) -> np.ndarray | None:
         """The detections' χ² under the solution's detection model (``ObserverResult.innovation_d2``)."""
