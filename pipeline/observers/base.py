@@ -633,8 +633,11 @@ def _scatter_along(wb: np.ndarray, gb: np.ndarray, k: int, delta: np.ndarray) ->
     for s in (~side, side):
         mean = np.linalg.solve(wb[s].sum(axis=0) + ridge, gb[s].sum(axis=0))
         off[s] = (m[s] - mean) @ u
-    var = np.einsum("i,bij,j->b", u, np.linalg.inv(wb + ridge), u)
-    return float(np.sum(off**2 / var) / max(wb.shape[0] - 2, 1))
+    z = off / np.sqrt(np.einsum("i,bij,j->b", u, np.linalg.inv(wb + ridge), u))
+    lags = int(np.ceil(wb.shape[0] ** (1.0 / 3.0)))  # Newey and West's Bartlett window
+    gamma = [float(z[lag:] @ z[: z.shape[0] - lag]) for lag in range(min(lags, z.shape[0] - 1) + 1)]
+    long_run = gamma[0] + 2.0 * sum((1.0 - lag / (lags + 1.0)) * gamma[lag] for lag in range(1, len(gamma)))
+    return max(long_run, gamma[0]) / max(wb.shape[0] - 2, 1)
 
 
 def landmark_moves(
