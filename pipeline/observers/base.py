@@ -595,10 +595,15 @@ MOVE_BLOCK_S = 1.0
 MOVE_MIN_BLOCKS = 3
 
 
-def _blocks(t_s: np.ndarray, w: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One landmark's detections (time order) summed over ``MOVE_BLOCK_S`` blocks: Σ W, Σ W e, and each block's
-    χ² about its own mean's zero, gᵀ W⁻¹ g."""
-    starts = np.flatnonzero(np.r_[True, np.diff(np.floor(t_s / MOVE_BLOCK_S)) != 0])
+def _block_starts(t_s: np.ndarray, block_s: float) -> np.ndarray:
+    """The first detection of each ``block_s`` block of one landmark's detections (time order)."""
+    return np.flatnonzero(np.r_[True, np.diff(np.floor(t_s / block_s)) != 0])
+
+
+def _blocks(t_s: np.ndarray, w: np.ndarray, g: np.ndarray, block_s: float) -> tuple[np.ndarray, ...]:
+    """One landmark's detections (time order) summed over ``block_s`` blocks: Σ W, Σ W e, and each block's χ²
+    about its own mean's zero, gᵀ W⁻¹ g."""
+    starts = _block_starts(t_s, block_s)
     wb, gb = np.add.reduceat(w, starts, axis=0), np.add.reduceat(g, starts, axis=0)
     qb = np.einsum("bi,bi->b", gb, np.linalg.solve(wb + 1e-12 * np.eye(3), gb[:, :, None])[:, :, 0])
     return wb, gb, qb
@@ -641,20 +646,27 @@ def _scatter_along(wb: np.ndarray, gb: np.ndarray, k: int, delta: np.ndarray) ->
 
 
 def landmark_moves(
-    t_ns: np.ndarray, ids: np.ndarray, e: np.ndarray, w: np.ndarray, alpha: float = MOVE_ALPHA
+    t_ns: np.ndarray,
+    ids: np.ndarray,
+    e: np.ndarray,
+    w: np.ndarray,
+    alpha: float = MOVE_ALPHA,
+    block_s: float = MOVE_BLOCK_S,
 ) -> tuple[list[dict], dict | None]:
     """The landmarks whose detections before and after some time disagree on where it is (a landmark moved, an id
-    reused): per landmark, its detections summed over ``MOVE_BLOCK_S`` blocks, each split between blocks tested as
-    two places against one, each detection's residual ``e`` (M, 3: where it puts the landmark minus the map's place,
-    world frame) weighed by its information ``w`` (M, 3, 3: its inverse covariance under the detection law). The
+    reused): per landmark, its detections summed over ``block_s`` blocks (``MOVE_BLOCK_S``, or the detection
+    errors' own correlation time where the estimator models one: shorter blocks are not independent), each split
+    between blocks tested as two places against one, each detection's residual ``e`` (M, 3: where it puts the
+    landmark minus the map's place, world frame) weighed by its information ``w`` (M, 3, 3: its inverse covariance
+    under the detection law). The
     statistic is an F: δᵀC⁻¹δ / 3 over the block means' scatter about their side's mean per degree of freedom (the
     residuals' level as the run has it, the pose's wandering error in it; a two-sample test of means with the
     variance unknown), against the F(3, 3 (blocks − 2)) quantile at ``1 − alpha`` over every split of every landmark
     tried (Bonferroni). Each named one as :func:`landmark_jumps` gives it (``id``, ``t_ns``, ``before``/``after`` as
     [detections, median √d² over the run's]) with ``moved_m`` (|δ|), its σ along δ at that level
     (``moved_sigma_m``), the statistic ``f``, its ``threshold`` and ``level``, and ``moved`` (the test's name); and
-    the test's record (its ``largest`` F over its threshold and landmark, ``alpha``, ``splits`` tried), None where
-    no landmark had the blocks to test."""
+    the test's record (its ``largest`` F over its threshold and landmark, ``alpha``, ``splits`` tried,
+    ``block_s``), None where no landmark had the blocks to test."""
     t_s = (t_ns - t_ns.min(initial=0)) * 1e-9
     g = np.einsum("mij,mj->mi", w, e)
     d = np.sqrt(np.maximum(np.einsum("mi,mi->m", e, g), 0.0))
@@ -664,7 +676,7 @@ def landmark_moves(
     tests = []
     for lid, i0, n in zip(lids, first, seen, strict=True):
         rows = order[i0 : i0 + n]
-        wb, gb, qb = _blocks(t_s[rows], w[rows], g[rows])
+        wb, gb, qb = _blocks(t_s[rows], w[rows], g[rows], block_s)
         if wb.shape[0] >= 2 * MOVE_MIN_BLOCKS and n >= 2 * JUMP_MIN_DETECTIONS:
             tests.append((int(lid), rows, (wb, gb), _change_points(wb, gb, qb)))
     tried = sum(blocks[0].shape[0] - 2 * MOVE_MIN_BLOCKS + 1 for _, _, blocks, _ in tests)
@@ -685,7 +697,7 @@ def landmark_moves(
             nearest = {"id": lid, "ratio": float(f[best] / threshold)}
         if f[best] <= threshold:
             continue
-        starts = np.flatnonzero(np.r_[True, np.diff(np.floor(t_s[rows] / MOVE_BLOCK_S)) != 0])
+        starts = _block_starts(t_s[rows], block_s)
         kk, size = int(starts[k[best]]), float(np.linalg.norm(delta[best]))
         unit = delta[best] / max(size, 1e-12)
         out.append(
@@ -702,7 +714,7 @@ def landmark_moves(
                 "level": float(level[best]),
             }
         )
-    return out, {"largest": nearest, "alpha": alpha, "splits": tried}
+    return out, {"largest": nearest, "alpha": alpha, "splits": tried, "block_s": block_s}
 
 
 def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) -> AlignedStream:

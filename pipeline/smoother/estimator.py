@@ -18,7 +18,7 @@ from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.noise import DETECTION_LAW_KEYS
-from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper, landmark_moves
+from slamobs.pipeline.observers.base import MOVE_BLOCK_S, KernelState, ObserverSpec, Outputs, Stepper, landmark_moves
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother import inverse_depth as idp
@@ -373,7 +373,7 @@ class BatchSmoother(Stepper):
             # a start's (riekf's) innovations jumping: the run splits those landmarks as it does its own
             "start_landmark_jumps": self.start_jumps,
             # its own detections before and after a time disagreeing on a landmark's place (a landmark moved)
-            **self._moves(every_problem, sol),
+            **self._moves(every_problem, sol, summary.get("detection_correlation")),
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + level_notes
@@ -1158,11 +1158,13 @@ class BatchSmoother(Stepper):
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
 
-    def _moves(self, problem, sol) -> dict:
+    def _moves(self, problem, sol, correlation: dict | None) -> dict:
         """:func:`.landmark_moves` over every detection at the solution (``landmark_moves`` and its record
         ``landmark_move_test``): each one's residual as where it puts its landmark minus the map's place,
         ``P + R y − ℓ`` (world frame), and its information ``R (S/σ²) Rᵀ``. Not in inverse depth (its residuals are
-        no places)."""
+        no places). Where the solve models the detections' errors as correlated in time (``correlation``
+        applied: MR.CLAM's, τ 20 s), the test's blocks are τ long (1 s blocks named static landmarks on MR.CLAM 7
+        r1, 6 r3 and 6 r4)."""
         from slamobs.pipeline.smoother import graph as g
 
         if self.inverse_depth is not None:
@@ -1180,7 +1182,9 @@ class BatchSmoother(Stepper):
             else:
                 info[z] = np.einsum("mij,mjk,mlk->mil", rot, problem.det_shape[z], rot) / sig2
         t_ns = np.repeat(s.det_t_ns, np.diff(s.det_offsets))
-        moves, record = landmark_moves(t_ns, s.landmark_ids[problem.det_idx], e, info)
+        tau = (correlation or {}).get("tau_s") if (correlation or {}).get("applied") else None
+        block_s = max(MOVE_BLOCK_S, float(tau or 0.0))
+        moves, record = landmark_moves(t_ns, s.landmark_ids[problem.det_idx], e, info, block_s=block_s)
         return {"landmark_moves": moves, "landmark_move_test": record}
 
     def detection_distances(self, det_first: int, det_stop: int) -> np.ndarray | None:
