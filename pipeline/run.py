@@ -893,9 +893,6 @@ def _record_jumps(name, part, innovations, known_map, split, aligned, t0_ns, met
     # places (a second tag on the id, seed=3653: its whitened residuals' far stretches left detections of the other
     # tag under the id, which the run made again named again; the start's split them all)
     jumps = checks.get("start_landmark_jumps") or landmark_jumps(*innovations.arrays())
-    # a landmark moved 0.1-1 m sits at 4-13x the run's usual distance, under the ratio's 20x: batch's change-point
-    # test on where each detection puts it (observers.base.landmark_moves) names it
-    jumps = jumps or checks.get("landmark_moves") or []
     # after a misread input the detections named, the jumps are the lost pose's: not split (round 7)
     lost = time_offset_misread(checks.get("time_offset"))
     if jumps and split is None and known_map is None and not lost:

@@ -791,16 +791,10 @@ def _jump_words(j: dict, t0_ns: int) -> str:
             f"{spans}{more}, a median {j['far'][1]:.3g}x the run's usual distance from the map, {j['near'][0]} "
             f"between them {j['near'][1]:.3g}x{new}{_apart_words(j)})"
         )
-    moved = (
-        f"; they put it {j['moved_m']:.3g} ± {j['moved_sigma_m']:.2g} m apart (change-point F {j['f']:.3g} "
-        f"over {j['threshold']:.3g})"
-        if "moved_m" in j
-        else ""
-    )
     return (
         f"{j['id']} at {(j['t_ns'] - t0_ns) / 1e9:.1f} s ({j['before'][0]} detections before it a median "
         f"{j['before'][1]:.3g}x the run's usual distance from the map, {j['after'][0]} after it {j['after'][1]:.3g}x"
-        f"{moved}{new}{_apart_words(j)})"
+        f"{new}{_apart_words(j)})"
     )
 
 
