@@ -1579,6 +1579,35 @@ def test_landmark_moves_names_a_step_in_one_landmark_s_places_and_nothing_in_noi
     assert landmark_moves(t_ns, ids, wander, w)[0] == []
 
 
+def test_landmark_moves_tells_one_landmark_s_step_from_the_pose_error_every_landmark_in_view_shares():
+    """A pose error over a visit shows in every landmark seen then; a moved landmark is one landmark's step (MR.CLAM
+    6 r4 and 7 r3 named static landmarks: docs/benchmarks.md, "A landmark moved 0.1-1 m mid-log"). Four landmarks
+    seen together, their detections from the 120th on all 0.2 m off (the pose off, the map's places their means):
+    none named, where the test on each landmark's own offsets names all four; with landmark 2 also moved 0.1 m from
+    then on, it alone is named, at its step and its own size; seen alone it has no reference and is not named."""
+    from slamobs.pipeline.observers.base import landmark_moves
+
+    rng = np.random.default_rng(11)
+    n, lms, sigma = 200, 4, 0.02
+    ids = np.repeat(np.arange(lms), n)
+    t_ns = np.tile(np.arange(n) * 100_000_000, lms)
+    late = np.tile(np.arange(n) >= 120, lms)
+    e = rng.normal(0.0, sigma, (n * lms, 3)) + np.where(late[:, None], [0.0, 0.2, 0.0], 0.0)
+    w = np.broadcast_to(np.eye(3) / sigma**2, (n * lms, 3, 3))
+    moved = e + np.where((late & (ids == 2))[:, None], [0.1, 0.0, 0.0], 0.0)
+    for x in (e, moved):
+        for lid in range(lms):
+            x[ids == lid] -= x[ids == lid].mean(axis=0)  # the map's place: the mean of its detections
+    assert sorted(j["id"] for j in landmark_moves(t_ns, ids, e, w, reference_s=None)[0]) == [0, 1, 2, 3]
+    assert landmark_moves(t_ns, ids, e, w)[0] == []
+    named, record = landmark_moves(t_ns, ids, moved, w)
+    assert [j["id"] for j in named] == [2], (named, record)
+    assert named[0]["t_ns"] == 120 * 100_000_000
+    assert abs(named[0]["moved_m"] - 0.1) < 3 * named[0]["moved_sigma_m"]
+    alone = ids == 2
+    assert landmark_moves(t_ns[alone], ids[alone], moved[alone], w[alone])[0] == []
+
+
 def test_batch_records_a_landmark_moved_half_a_metre(tmp_path):
     """A tag moved 0.5 m mid-log sat at 4-13x the run's usual distance, under the jump ratio's 20x, and the run said
     nothing (seed=3831, seed=3651, seed=9977; docs/benchmarks.md, "The landmark jump check on batch's own whitened

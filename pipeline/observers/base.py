@@ -593,6 +593,48 @@ MOVE_ALPHA = 0.01
 MOVE_BLOCK_S = 1.0
 #: Blocks needed on each side of a split (so the scatter has 3 (blocks − 2) ≥ 12 degrees of freedom).
 MOVE_MIN_BLOCKS = 3
+#: :func:`landmark_moves` takes from each detection the offset the other landmarks detected within the same bin of
+#: this many seconds share (the pose's error then, every landmark in view shows it): a moved landmark is one
+#: landmark's step, not its visit's.
+MOVE_REFERENCE_S = 1.0
+#: Other landmarks a detection's bin needs for its reference: with one, a step in the two's difference is either's
+#: (TagSLAM test_21, two tags: each named at 0.01 m against the other), with two or more the odd one is told.
+MOVE_REFERENCE_LANDMARKS = 2
+
+
+def _co_visible(
+    t_s: np.ndarray, ids: np.ndarray, w: np.ndarray, g: np.ndarray, bin_s: float, at_t: np.ndarray, at_ids: np.ndarray
+) -> tuple[np.ndarray, ...]:
+    """Per detection (``at_t``, ``at_ids``), the detections of every other landmark in its ``bin_s`` bin among the
+    reference ones (``t_s``, ``ids``, ``w``, ``g``) summed: Σ W and Σ W e (zero where none was seen with it), and
+    how many other landmarks those are."""
+    b, at_b = np.floor(t_s / bin_s).astype(np.int64), np.floor(at_t / bin_s).astype(np.int64)
+    bins, in_bin = np.unique(b, return_inverse=True)
+    wo, go = np.zeros((bins.shape[0] + 1, 3, 3)), np.zeros((bins.shape[0] + 1, 3))
+    np.add.at(wo, in_bin.ravel(), w)
+    np.add.at(go, in_bin.ravel(), g)
+    pairs, in_pair = np.unique(np.stack([b, ids.astype(np.int64)], axis=1), axis=0, return_inverse=True)
+    wp, gp = np.zeros((pairs.shape[0] + 1, 3, 3)), np.zeros((pairs.shape[0] + 1, 3))
+    np.add.at(wp, in_pair.ravel(), w)
+    np.add.at(gp, in_pair.ravel(), g)
+    others = np.r_[np.bincount(np.searchsorted(bins, pairs[:, 0]), minlength=bins.shape[0]), 0]
+    i = np.minimum(np.searchsorted(bins, at_b), bins.shape[0])
+    i[(i < bins.shape[0]) & (bins[np.minimum(i, bins.shape[0] - 1)] != at_b)] = bins.shape[0]  # no reference bin
+    key = pairs[:, 0] * (1 << 32) + pairs[:, 1]
+    at_key = at_b * (1 << 32) + at_ids.astype(np.int64)
+    j = np.minimum(np.searchsorted(key, at_key), pairs.shape[0])
+    j[(j < pairs.shape[0]) & (key[np.minimum(j, pairs.shape[0] - 1)] != at_key)] = pairs.shape[0]
+    return wo[i] - wp[j], go[i] - gp[j], others[i] - (j < pairs.shape[0])
+
+
+def _relative(e: np.ndarray, w: np.ndarray, wo: np.ndarray, go: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each detection's offset less the other landmarks' mean offset in its bin (``wo``, ``go``: their Σ W, Σ W e),
+    and the information of that difference, (W⁻¹ + Wₒ⁻¹)⁻¹ = W (W + Wₒ)⁻¹ Wₒ (finite where either is singular)."""
+    ridge = 1e-12 * np.eye(3)
+    ref = np.linalg.solve(wo + ridge, go[:, :, None])[:, :, 0]
+    wd = np.einsum("mij,mjk->mik", w, np.linalg.solve(w + wo + ridge, wo))
+    wd = 0.5 * (wd + np.swapaxes(wd, 1, 2))
+    return e - ref, wd
 
 
 def _block_starts(t_s: np.ndarray, block_s: float) -> np.ndarray:
@@ -652,6 +694,7 @@ def landmark_moves(
     w: np.ndarray,
     alpha: float = MOVE_ALPHA,
     block_s: float = MOVE_BLOCK_S,
+    reference_s: float | None = MOVE_REFERENCE_S,
 ) -> tuple[list[dict], dict | None]:
     """The landmarks whose detections before and after some time disagree on where it is (a landmark moved, an id
     reused): per landmark, its detections summed over ``block_s`` blocks (``MOVE_BLOCK_S``, or the detection
@@ -669,6 +712,38 @@ def landmark_moves(
     ``block_s``), None where no landmark had the blocks to test."""
     t_s = (t_ns - t_ns.min(initial=0)) * 1e-9
     g = np.einsum("mij,mj->mi", w, e)
+    own, tried, nearest = _move_tests(t_ns, t_s, ids, e, w, g, alpha, block_s, None)
+    out = [j for j in own if j["f"] > j["threshold"]]
+    if reference_s and tried:  # named where both its own offsets and those less the others' step
+        by_id, out, ref, splits = {j["id"]: j for j in out}, [], np.ones(ids.shape[0], bool), None
+        while True:  # the strongest named first, then left out of the others' references (its step is in them)
+            wo, go, others = _co_visible(t_s[ref], ids[ref], w[ref], g[ref], reference_s, t_s, ids)
+            seen = (others >= MOVE_REFERENCE_LANDMARKS) & (np.einsum("mii->m", wo) > 1e-9 * np.einsum("mii->m", w))
+            er, wr = _relative(e[seen], w[seen], wo[seen], go[seen])
+            gr = np.einsum("mij,mj->mi", wr, er)
+            found, n, _ = _move_tests(t_ns[seen], t_s[seen], ids[seen], er, wr, gr, alpha, block_s, splits)
+            if splits is None:  # the record's largest: the smaller of a landmark's two ratios
+                rel = {j["id"]: j["f"] / j["threshold"] for j in found}
+                ratio = {j["id"]: min(j["f"] / j["threshold"], rel.get(j["id"], 0.0)) for j in own}
+                top = max(ratio, key=ratio.get)
+                nearest = {"id": top, "ratio": float(ratio[top])}
+            splits = n
+            named = {j["id"] for j in out}
+            over = [j for j in found if j["f"] > j["threshold"] and j["id"] in by_id and j["id"] not in named]
+            if not over:
+                break
+            best = max(over, key=lambda j: j["f"] / j["threshold"])
+            out.append({**best, "own_f": by_id[best["id"]]["f"], "own_threshold": by_id[best["id"]]["threshold"]})
+            ref &= ids != best["id"]
+    if not tried:
+        return [], None
+    return out, {"largest": nearest, "alpha": alpha, "splits": tried, "block_s": block_s, "reference_s": reference_s}
+
+
+def _move_tests(t_ns, t_s, ids, e, w, g, alpha: float, block_s: float, tried: int | None) -> tuple[list, int, dict]:
+    """:func:`landmark_moves`' test of each landmark with the blocks to test (over ``tried`` splits, or its own
+    count): each one's best split as :func:`landmark_moves` records it, the splits tried, the largest F over its
+    threshold and its landmark."""
     d = np.sqrt(np.maximum(np.einsum("mi,mi->m", e, g), 0.0))
     usual = float(np.median(d[d > 0])) if np.any(d > 0) else 1.0
     order = id_time_order(ids, t_ns)
@@ -679,9 +754,7 @@ def landmark_moves(
         wb, gb, qb = _blocks(t_s[rows], w[rows], g[rows], block_s)
         if wb.shape[0] >= 2 * MOVE_MIN_BLOCKS and n >= 2 * JUMP_MIN_DETECTIONS:
             tests.append((int(lid), rows, (wb, gb), _change_points(wb, gb, qb)))
-    tried = sum(blocks[0].shape[0] - 2 * MOVE_MIN_BLOCKS + 1 for _, _, blocks, _ in tests)
-    if not tried:
-        return [], None
+    tried = tried or sum(blocks[0].shape[0] - 2 * MOVE_MIN_BLOCKS + 1 for _, _, blocks, _ in tests)
     out, nearest = [], {"id": None, "ratio": 0.0}
     for lid, rows, (wb, gb), (k, delta, c, t, scatter) in tests:
         dof = 3.0 * (wb.shape[0] - 2)
@@ -695,8 +768,6 @@ def landmark_moves(
         threshold = f_quantile(1.0 - alpha / tried, 3.0, dof)
         if f[best] / threshold > nearest["ratio"]:
             nearest = {"id": lid, "ratio": float(f[best] / threshold)}
-        if f[best] <= threshold:
-            continue
         starts = _block_starts(t_s[rows], block_s)
         kk, size = int(starts[k[best]]), float(np.linalg.norm(delta[best]))
         unit = delta[best] / max(size, 1e-12)
@@ -714,7 +785,7 @@ def landmark_moves(
                 "level": float(level[best]),
             }
         )
-    return out, {"largest": nearest, "alpha": alpha, "splits": tried, "block_s": block_s}
+    return out, tried, nearest
 
 
 def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) -> AlignedStream:
