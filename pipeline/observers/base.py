@@ -704,42 +704,41 @@ def landmark_moves(
     [detections, median √d² over the run's]) with ``moved_m`` (|δ|), its σ along δ at that level
     (``moved_sigma_m``), the statistic ``f``, its ``threshold`` and ``level``, and ``moved`` (the test's name); and
     the test's record (its ``largest`` F over its threshold and landmark, ``alpha``, ``splits`` tried,
-    ``block_s``, ``reference_s``), None where no landmark had the blocks to test.
+    ``block_s``, ``reference_s``, and ``relative_largest`` where the second test ran), None where no landmark had
+    the blocks to test.
 
     With ``reference_s`` (``MOVE_REFERENCE_S``) a pose error, which every landmark in view shows, is told from one
     landmark's step: the test is run again on each detection's offset less the other landmarks' mean offset in its
     ``reference_s`` bin (detections seen with no other left out), and a landmark is named only where both pass, the
     strongest first, then left out of the others' references and the second test run again; its entry is the
-    second test's, with the first's ``own_f`` and ``own_threshold``, and ``largest`` the smaller of the two ratios
-    (MR.CLAM 6 r4 and 7 r3's static landmarks named on their own offsets: a robot's pose error over a visit)."""
+    second test's, with the first's ``own_f`` and ``own_threshold`` (the second run only on those the first names,
+    against the first's threshold; its ``relative_largest`` in the record: MR.CLAM 6 r4 and 7 r3's static landmarks
+    were named on their own offsets, a robot's pose error over a visit)."""
     t_s = (t_ns - t_ns.min(initial=0)) * 1e-9
     g = np.einsum("mij,mj->mi", w, e)
     own, tried, nearest = _move_tests(t_ns, t_s, ids, e, w, g, alpha, block_s, None)
     out = [j for j in own if j["f"] > j["threshold"]]
-    if reference_s and tried:  # named where both its own offsets and those less the others' step
-        by_id, out, ref, splits = {j["id"]: j for j in out}, [], np.ones(ids.shape[0], bool), None
+    record = {"largest": nearest, "alpha": alpha, "splits": tried, "block_s": block_s, "reference_s": reference_s}
+    if reference_s and out:  # named where its offsets less the others' in view step too (the own test's splits)
+        by_id, out, ref, record["relative_largest"] = {j["id"]: j for j in out}, [], np.ones(ids.shape[0], bool), None
         while True:  # the strongest named first, then left out of the others' references (its step is in them)
-            wo, go = _co_visible(t_s[ref], ids[ref], w[ref], g[ref], reference_s, t_s, ids)
-            seen = np.einsum("mii->m", wo) > 1e-9 * np.einsum("mii->m", w)  # seen with no other: no reference
-            er, wr = _relative(e[seen], w[seen], wo[seen], go[seen])
+            rows = np.flatnonzero(np.isin(ids, [i for i in by_id if i not in {j["id"] for j in out}]))
+            wo, go = _co_visible(t_s[ref], ids[ref], w[ref], g[ref], reference_s, t_s[rows], ids[rows])
+            seen = np.einsum("mii->m", wo) > 1e-9 * np.einsum("mii->m", w[rows])  # seen with no other: no reference
+            rows, wo, go = rows[seen], wo[seen], go[seen]
+            er, wr = _relative(e[rows], w[rows], wo, go)
             gr = np.einsum("mij,mj->mi", wr, er)
-            found, n, _ = _move_tests(t_ns[seen], t_s[seen], ids[seen], er, wr, gr, alpha, block_s, splits)
-            if splits is None:  # the record's largest: the smaller of a landmark's two ratios
-                rel = {j["id"]: j["f"] / j["threshold"] for j in found}
-                ratio = {j["id"]: min(j["f"] / j["threshold"], rel.get(j["id"], 0.0)) for j in own}
-                top = max(ratio, key=ratio.get)
-                nearest = {"id": top, "ratio": float(ratio[top])}
-            splits = n
-            named = {j["id"] for j in out}
-            over = [j for j in found if j["f"] > j["threshold"] and j["id"] in by_id and j["id"] not in named]
+            found, _, largest = _move_tests(t_ns[rows], t_s[rows], ids[rows], er, wr, gr, alpha, block_s, tried)
+            record["relative_largest"] = record["relative_largest"] or largest
+            over = [j for j in found if j["f"] > j["threshold"]]
             if not over:
                 break
             best = max(over, key=lambda j: j["f"] / j["threshold"])
             out.append({**best, "own_f": by_id[best["id"]]["f"], "own_threshold": by_id[best["id"]]["threshold"]})
             ref &= ids != best["id"]
-    if not tried:
-        return [], None
-    return out, {"largest": nearest, "alpha": alpha, "splits": tried, "block_s": block_s, "reference_s": reference_s}
+            if len(out) == len(by_id):
+                break
+    return (out, record) if tried else ([], None)
 
 
 def _move_tests(t_ns, t_s, ids, e, w, g, alpha: float, block_s: float, tried: int | None) -> tuple[list, int, dict]:
