@@ -242,6 +242,48 @@ def test_a_lone_detection_far_off_is_updated_by_the_iterated_step():
         assert np.abs(got - want).max() <= 1e-6 * np.abs(want).max()
 
 
+def test_a_lone_detection_far_off_whose_step_turns_nothing_is_damped_not_iterated():
+    """The attitude σ is about 13° but uncorrelated with the position and the map (an unobserved tilt beside an
+    in-plane innovation): ``|z|² tr Σ⁻_RR`` is over the gate's ``σ²``, yet the plain step turns nothing
+    (``ξ_R = (Σ⁻_RP − Σ⁻_Rs) S⁻¹ z = 0``), so its linearisation is not what is off: the frame is the damped plain
+    update (noise ``σ²I + [z]× Σ⁻_RR [z]×ᵀ``, the dropped term's covariance), not the iterated one."""
+    rng, n, d, slot_of, slot_lm, cov, lm, acc, r_hat, p_hat, b_om, b_v = _random_frame_state()
+    cov[:3, :] = 0.0
+    cov[:, :3] = 0.0
+    cov[:3, :3] = 0.05 * np.eye(3)
+    acc[:] = 0.0  # no propagation to correlate them
+    i = 4
+    det_y = rng.normal(size=(1, 3)) * 3
+    law = np.array([0.02, 0.004, 0.0, 1.0, 0.0])
+    sigma2 = (law[0] + law[1] * np.linalg.norm(lm[i] - p_hat)) ** 2
+    gate, walk_w, walk_v, dt = 1000.0, 0.01, 0.02, 0.1
+    sl = N_FIXED + 3 * slot_of[i]
+    h = np.zeros((3, d))
+    h[:, 3:6], h[:, sl : sl + 3] = np.eye(3), -np.eye(3)
+    z = r_hat @ det_y[0] + p_hat - lm[i]
+
+    def noise(srr):
+        assert z @ z * np.trace(srr) > gate * sigma2  # far off by the prior's attitude spread
+        return sigma2 * np.eye(3) + skew(z) @ srr @ skew(z).T
+
+    xi, cov_exp = _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise)
+    a_exp, jl = so3_exp(-xi[:3]), so3_left_jacobian(-xi[:3])
+    r_exp, p_exp = a_exp @ r_hat, a_exp @ p_hat - jl @ xi[3:6]
+    lt, rt, dp = np.zeros((9, d)), np.zeros((9, d)), np.zeros((3, d))
+    propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
+    ns = np.zeros(N_SLOTS, dtype=np.int64)
+    d_out = update(
+        0, 1, np.array([i]), det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+        np.zeros(1, np.int64), np.zeros(3), lt, rt, dp, np.zeros((3, 3)), np.zeros((1, 3)), np.zeros((1, 3)), 0, ns,
+        gate, 1.0, np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_),
+        np.zeros(n, np.bool_), np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)), np.zeros(1), *correlation_arrays(n),
+    )  # fmt: skip
+    assert d_out == d and ns[9] == 1 and ns[8] == 0  # one update, not gated
+    assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max()
+    for got, want in ((r_hat, r_exp), (p_hat, p_exp)):
+        assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
 def _two_frames(partial: bool):
     """Two frames through ``update``, propagation pending before each: the first detects landmarks 4, 1, 3 and a
     new one, 6 (augmented from the position's rows), and mirrors either the whole lower triangle or (``partial``)

@@ -831,6 +831,75 @@ def _far_off(z, srr, sigma2, gate):
     return (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) > gate * sigma2
 
 
+@subroutine(types.none, fastmath=CONTRACT)
+def _linearisation(z, srr, lin):
+    """``lin = [z]× Σ⁻_RR [z]×ᵀ``: the covariance of the term the invariant model's ``H = [0, I, −I]`` drops, the
+    correction's turn of the innovation itself (``−[z]× ξ_R``), second order for a small innovation and metres after
+    a blind stretch (docs/benchmarks.md, "riekf's re-acquisition after a blind stretch"). Added to the detection's
+    noise in the update (not in the gate) of a frame whose only update is a far-off detection (:func:`_far_off`)
+    whose plain step's own turn keeps it within its noise (:func:`_own_turn`): one detection of one point then
+    moves the pose less along what it cannot see; with two or more in the frame the update is the plain one (on
+    all, the real logs' MR.CLAM runs lost up to 0.09 m). Not while :func:`_blind_check` judges a return after
+    ``BLIND_S`` or more without a known landmark (its first ``BLIND_WINDOW`` detections): its verdict (the pose
+    beyond its covariance when nearly all fail the gate) is on the plain updates (damped, the floor's gap log let
+    later ones through a pose 45° off: the check did not act, a recovery took the track later)."""
+    k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
+    for a in range(3):
+        for b in range(3):
+            v = 0.0
+            for c in range(3):
+                for e in range(3):
+                    v += k[a][c] * srr[c, e] * k[b][e]
+            lin[a, b] = v
+
+
+@subroutine(types.float64, fastmath=CONTRACT)
+def _turn_row(cov, dp, lt, rt, sl, a, w):
+    """Row ``a`` of the plain step's turn ``(Σ⁻_RP − Σ⁻_Rs) w`` (:func:`_own_turn`); ``Σ⁻`` on a position column is
+    ``Σ_ij + dp[j − 3, i]``, on the landmark's with the pending propagation's terms."""
+    v = 0.0
+    for b in range(3):
+        v += (cov[a, 3 + b] + dp[b, a] - _pending_sum(cov[a, sl + b], lt, rt, a, sl + b)) * w[b]
+    return v
+
+
+@subroutine(types.float64, fastmath=CONTRACT)
+def _own_turn(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
+    """Mahalanobis distance², against the detection's own noise ``σ²I + u uᵀ``, of ``[z]× ξ_R``: how far the plain
+    step's own turn ``ξ_R = (Σ⁻_RP − Σ⁻_Rs) S⁻¹ z`` (``S`` as in :func:`_gate`) moves the innovation it explains. The
+    step's linearisation error as it is taken, where :func:`_far_off` bounds it by the prior's whole attitude
+    spread: a turn the step does not make (an unobserved tilt's variance beside an in-plane innovation) is no
+    reason to iterate. ``s``: 3×3 scratch."""
+    for a in range(3):
+        for b in range(3):
+            v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
+            v -= cov[3 + a, sl + b] + dp[a, sl + b]  # Σ⁻_Ps
+            v -= cov[sl + a, 3 + b] + dp[b, sl + a]  # Σ⁻_sP
+            v = _pending_sum(v + cov[sl + a, sl + b], lt, rt, sl + a, sl + b)  # Σ⁻_ss
+            s[a, b] = v + ues[j, a] * ues[j, b]
+        s[a, a] += sigma2
+    if not cholesky_lower(s, np.int64(3)):
+        return np.inf
+    w0 = z[0] / s[0, 0]  # w = S⁻¹ z: L⁻¹ then L⁻ᵀ
+    w1 = (z[1] - s[1, 0] * w0) / s[1, 1]
+    w2 = (z[2] - s[2, 0] * w0 - s[2, 1] * w1) / s[2, 2]
+    w2 = w2 / s[2, 2]
+    w1 = (w1 - s[2, 1] * w2) / s[1, 1]
+    w0 = (w0 - s[1, 0] * w1 - s[2, 0] * w2) / s[0, 0]
+    w = (w0, w1, w2)
+    t0, t1, t2 = (
+        _turn_row(cov, dp, lt, rt, sl, 0, w),
+        _turn_row(cov, dp, lt, rt, sl, 1, w),
+        _turn_row(cov, dp, lt, rt, sl, 2, w),
+    )
+    dz = (z[1] * t2 - z[2] * t1, z[2] * t0 - z[0] * t2, z[0] * t1 - z[1] * t0)  # [z]× ξ_R up to its sign
+    for a in range(3):
+        for b in range(3):
+            s[a, b] = ues[j, a] * ues[j, b]
+        s[a, a] += sigma2
+    return _mahalanobis3(s, dz)
+
+
 #: The iterated update of a lone far-off detection (:func:`_iterated`): at most this many Gauss-Newton steps, stopped
 #: when a step moves the pose and landmark by less than ``ITERATE_TOL`` (rad, m).
 ITERATE_MAX = 8
@@ -1305,13 +1374,18 @@ def update(
         ns[_OPEN_GATED] = 0
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
-    lone = False  # the frame's only update, far off for its linearisation: iterated (_iterated)
+    lone = False  # the frame's only update, far off for its linearisation and turned by its step: iterated
+    lin = np.zeros((3, 3))  # else its linearisation term outside a return (_linearisation)
     if m == 1:
         srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
             for b in range(3):
                 srr[a, b] = _pending_sum(cov[a, b], lt, rt, a, b)
-        lone = _far_off(z, srr, sig2[sel[0]], gate)
+        if _far_off(z, srr, sig2[sel[0]], gate):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[0]]]
+            lone = _own_turn(cov, z, sl, sig2[sel[0]], ues, sel[0], lt, rt, dp, s3) > gate
+            if not lone and ns[_ARMED] == 0:
+                _linearisation(z, srr, lin)
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
@@ -1336,7 +1410,7 @@ def update(
                     for k in range(k3):
                         smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                     for b in range(3):
-                        smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b]
+                        smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
                     smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
