@@ -130,14 +130,6 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
   half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
   real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
-* A lone detection far off: the invariant model's constant ``H = [0, I, −I]`` drops the correction's turn of the
-  innovation itself (``−[z]× ξ_R``), second order for a small innovation and metres after a blind stretch. When a
-  frame's only update is a detection whose ``|z|² tr Σ⁻_RR`` exceeds the gate times its variance (that term alone
-  would fail the gate), the update is iterated to the maximum a posteriori (:func:`_iterated`: Gauss-Newton on the
-  innovation at the corrected state, its Jacobian at the last iterate, the covariance downdated once with it), so
-  one detection of one point turns the pose as far as its prior allows instead of moving it along what one linear
-  step gets wrong; with two or more in the frame the update is the plain one (docs/benchmarks.md, "riekf's return
-  after a long blind stretch").
 * Stated levels above the samples: a message's covariance more than ``1 / noise.STATED_LOW`` times above the
   samples' white-noise estimate is believed (a coloured noise, a VIO's, is louder than its samples show), yet where
   the sensor is white riekf weighs that stream too loosely (1.2-1.9x its APE with the true levels on session 33's
@@ -823,26 +815,21 @@ def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
     return _mahalanobis3(s, z)
 
 
-@njit(cache=True)
-def _far_off(z, srr, sigma2, gate):
-    """Whether ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance ``sigma2``: the term the invariant
-    model's ``H = [0, I, −I]`` drops, the correction's turn of the innovation itself (``−[z]× ξ_R``, second order for
-    a small innovation and metres after a blind stretch), would alone fail the gate as a detection error."""
-    return (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) > gate * sigma2
-
-
 @subroutine(types.none, fastmath=CONTRACT)
-def _linearisation(z, srr, lin):
-    """``lin = [z]× Σ⁻_RR [z]×ᵀ``: the covariance of the term the invariant model's ``H = [0, I, −I]`` drops, the
-    correction's turn of the innovation itself (``−[z]× ξ_R``), second order for a small innovation and metres after
-    a blind stretch (docs/benchmarks.md, "riekf's re-acquisition after a blind stretch"). Added to the detection's
-    noise in the update (not in the gate) of a frame whose only update is a far-off detection (:func:`_far_off`)
-    whose plain step's own turn keeps it within its noise (:func:`_own_turn`): one detection of one point then
-    moves the pose less along what it cannot see; with two or more in the frame the update is the plain one (on
-    all, the real logs' MR.CLAM runs lost up to 0.09 m). Not while :func:`_blind_check` judges a return after
-    ``BLIND_S`` or more without a known landmark (its first ``BLIND_WINDOW`` detections): its verdict (the pose
-    beyond its covariance when nearly all fail the gate) is on the plain updates (damped, the floor's gap log let
-    later ones through a pose 45° off: the check did not act, a recovery took the track later)."""
+def _linearisation(z, srr, sigma2, gate, lin):
+    """``lin = [z]× Σ⁻_RR [z]×ᵀ`` when ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance
+    ``sigma2`` (as a detection error it alone would fail the gate), else left zero: the covariance of the term the
+    invariant model's ``H = [0, I, −I]`` drops, the correction's turn of the innovation itself (``−[z]× ξ_R``),
+    second order for a small innovation and metres after a blind stretch (docs/benchmarks.md, "riekf's
+    re-acquisition after a blind stretch"). Added to the detection's noise in the update (not in the gate) of a
+    frame whose only update is this detection: one detection of one point then moves the pose less along what it
+    cannot see; with two or more in the frame the update is the plain one (on all, the real logs' MR.CLAM runs lost
+    up to 0.09 m). Not while :func:`_blind_check` judges a return after ``BLIND_S`` or more without a known landmark
+    (its first ``BLIND_WINDOW`` detections): its verdict (the pose beyond its covariance when nearly all fail the
+    gate) is on the plain updates (damped, the floor's gap log let later ones through a pose 45° off: the check
+    did not act, a recovery took the track later)."""
+    if (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) <= gate * sigma2:
+        return
     k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
     for a in range(3):
         for b in range(3):
@@ -851,147 +838,6 @@ def _linearisation(z, srr, lin):
                 for e in range(3):
                     v += k[a][c] * srr[c, e] * k[b][e]
             lin[a, b] = v
-
-
-@subroutine(types.float64, fastmath=CONTRACT)
-def _turn_row(cov, dp, lt, rt, sl, a, w):
-    """Row ``a`` of the plain step's turn ``(Σ⁻_RP − Σ⁻_Rs) w`` (:func:`_own_turn`); ``Σ⁻`` on a position column is
-    ``Σ_ij + dp[j − 3, i]``, on the landmark's with the pending propagation's terms."""
-    v = 0.0
-    for b in range(3):
-        v += (cov[a, 3 + b] + dp[b, a] - _pending_sum(cov[a, sl + b], lt, rt, a, sl + b)) * w[b]
-    return v
-
-
-@subroutine(types.float64, fastmath=CONTRACT)
-def _own_turn(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
-    """Mahalanobis distance², against the detection's own noise ``σ²I + u uᵀ``, of ``[z]× ξ_R``: how far the plain
-    step's own turn ``ξ_R = (Σ⁻_RP − Σ⁻_Rs) S⁻¹ z`` (``S`` as in :func:`_gate`) moves the innovation it explains. The
-    step's linearisation error as it is taken, where :func:`_far_off` bounds it by the prior's whole attitude
-    spread: a turn the step does not make (an unobserved tilt's variance beside an in-plane innovation) is no
-    reason to iterate. ``s``: 3×3 scratch."""
-    for a in range(3):
-        for b in range(3):
-            v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
-            v -= cov[3 + a, sl + b] + dp[a, sl + b]  # Σ⁻_Ps
-            v -= cov[sl + a, 3 + b] + dp[b, sl + a]  # Σ⁻_sP
-            v = _pending_sum(v + cov[sl + a, sl + b], lt, rt, sl + a, sl + b)  # Σ⁻_ss
-            s[a, b] = v + ues[j, a] * ues[j, b]
-        s[a, a] += sigma2
-    if not cholesky_lower(s, np.int64(3)):
-        return np.inf
-    w0 = z[0] / s[0, 0]  # w = S⁻¹ z: L⁻¹ then L⁻ᵀ
-    w1 = (z[1] - s[1, 0] * w0) / s[1, 1]
-    w2 = (z[2] - s[2, 0] * w0 - s[2, 1] * w1) / s[2, 2]
-    w2 = w2 / s[2, 2]
-    w1 = (w1 - s[2, 1] * w2) / s[1, 1]
-    w0 = (w0 - s[1, 0] * w1 - s[2, 0] * w2) / s[0, 0]
-    w = (w0, w1, w2)
-    t0, t1, t2 = (
-        _turn_row(cov, dp, lt, rt, sl, 0, w),
-        _turn_row(cov, dp, lt, rt, sl, 1, w),
-        _turn_row(cov, dp, lt, rt, sl, 2, w),
-    )
-    dz = (z[1] * t2 - z[2] * t1, z[2] * t0 - z[0] * t2, z[0] * t1 - z[1] * t0)  # [z]× ξ_R up to its sign
-    for a in range(3):
-        for b in range(3):
-            s[a, b] = ues[j, a] * ues[j, b]
-        s[a, a] += sigma2
-    return _mahalanobis3(s, dz)
-
-
-#: The iterated update of a lone far-off detection (:func:`_iterated`): at most this many Gauss-Newton steps, stopped
-#: when a step moves the pose and landmark by less than ``ITERATE_TOL`` (rad, m).
-ITERATE_MAX = 8
-ITERATE_TOL = 1e-6
-#: The central differences' step of the iterate's Jacobian (rad, m).
-DIFF_STEP = 1e-6
-
-
-@njit(cache=True)
-def _residual(z0, x, out):
-    """The innovation at the state ``exp(−ξ)X̂`` (:func:`_correct`) of a detection whose innovation at ``X̂`` is ``z0``:
-    ``A z0 − J(−ξ_R)(ξ_P − ξ_s)`` with ``A = exp(−[ξ_R]×)``; ``x`` = (ξ_R, ξ_P, ξ_s)."""
-    a = np.empty((3, 3))
-    unused = np.empty(3)
-    se3_exp_into(-x[0], -x[1], -x[2], 0.0, 0.0, 0.0, a, unused)
-    t0, t1, t2 = so3_left_jacobian_apply(-x[0], -x[1], -x[2], x[3] - x[6], x[4] - x[7], x[5] - x[8])
-    for c in range(3):
-        out[c] = a[c, 0] * z0[0] + a[c, 1] * z0[1] + a[c, 2] * z0[2]
-    out[0] -= t0
-    out[1] -= t1
-    out[2] -= t2
-
-
-@njit(cache=True)
-def _iterated(cov, d, sl, z, sigma2, ue, hp, smat):
-    """A lone far-off detection's update iterated to the maximum a posteriori (Gauss-Newton, an iterated EKF step):
-    each step's Jacobian ``H̃`` of the innovation at the last iterate over (ξ_R, ξ_P, ξ_s) (central differences of
-    :func:`_residual`; ``[0, I, −I]`` plus the turn's ``−[z]×`` column at the prior) and its innovation ``r +
-    H̃ξ``. Leaves ``H̃Σ`` in ``hp``'s rows 0-2, ``S = H̃ΣH̃ᵀ + σ²I + u uᵀ`` in ``smat`` and that innovation in ``z``
-    for the update's gain and downdate (:func:`_gain`, :func:`apply`): the state then moves to the last iterate's
-    step and the covariance is downdated once with the last Jacobian. ``cov`` settled and mirrored."""
-    idx = np.array([0, 1, 2, 3, 4, 5, sl, sl + 1, sl + 2])
-    z0 = z[:3].copy()
-    x = np.zeros(9)
-    r = np.empty(3)
-    rp = np.empty(3)
-    rm = np.empty(3)
-    ht = np.zeros((3, 9))
-    zp = np.empty(3)
-    s = np.empty((3, 3))
-    ch = np.empty((3, 3))
-    for _ in range(ITERATE_MAX):
-        _residual(z0, x, r)
-        for k in range(9):
-            x[k] += DIFF_STEP
-            _residual(z0, x, rp)
-            x[k] -= 2.0 * DIFF_STEP
-            _residual(z0, x, rm)
-            x[k] += DIFF_STEP
-            for c in range(3):
-                ht[c, k] = (rm[c] - rp[c]) / (2.0 * DIFF_STEP)
-        for c in range(3):
-            v = r[c]
-            for k in range(9):
-                v += ht[c, k] * x[k]
-            zp[c] = v
-        for c in range(3):
-            for j in range(d):
-                v = 0.0
-                for k in range(9):
-                    v += ht[c, k] * cov[idx[k], j]
-                hp[c, j] = v
-        for a in range(3):
-            for b in range(3):
-                v = 0.0
-                for k in range(9):
-                    v += hp[a, idx[k]] * ht[b, k]
-                s[a, b] = v + ue[a] * ue[b]
-            s[a, a] += sigma2
-        for a in range(3):
-            for b in range(3):
-                ch[a, b] = s[a, b]
-        if not cholesky_lower(ch, np.int64(3)):
-            break
-        w0 = zp[0] / ch[0, 0]  # w = S⁻¹ zp: L⁻¹ then L⁻ᵀ
-        w1 = (zp[1] - ch[1, 0] * w0) / ch[1, 1]
-        w2 = (zp[2] - ch[2, 0] * w0 - ch[2, 1] * w1) / ch[2, 2]
-        w2 = w2 / ch[2, 2]
-        w1 = (w1 - ch[2, 1] * w2) / ch[1, 1]
-        w0 = (w0 - ch[1, 0] * w1 - ch[2, 0] * w2) / ch[0, 0]
-        w = (w0, w1, w2)
-        step = 0.0
-        for k in range(9):
-            v = hp[0, idx[k]] * w[0] + hp[1, idx[k]] * w[1] + hp[2, idx[k]] * w[2]
-            step = max(step, abs(v - x[k]))
-            x[k] = v
-        if step < ITERATE_TOL:
-            break
-    for c in range(3):
-        z[c] = zp[c]
-        for b in range(3):
-            smat[c, b] = s[c, b]
 
 
 @subroutine(types.float64, fastmath=CONTRACT)
@@ -1374,44 +1220,35 @@ def update(
         ns[_OPEN_GATED] = 0
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
-    lone = False  # the frame's only update, far off for its linearisation and turned by its step: iterated
-    lin = np.zeros((3, 3))  # else its linearisation term outside a return (_linearisation)
-    if m == 1:
-        srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
+    lin = np.zeros((3, 3))  # the frame's only update's linearisation term (_linearisation)
+    if m == 1 and ns[_ARMED] == 0:  # two or more landmarks constrain the pose's turn, and a return the blind check
+        srr = np.empty((3, 3))  # judges is updated plainly; Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
             for b in range(3):
                 srr[a, b] = _pending_sum(cov[a, b], lt, rt, a, b)
-        if _far_off(z, srr, sig2[sel[0]], gate):
-            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[0]]]
-            lone = _own_turn(cov, z, sl, sig2[sel[0]], ues, sel[0], lt, rt, dp, s3) > gate
-            if not lone and ns[_ARMED] == 0:
-                _linearisation(z, srr, lin)
+        _linearisation(z, srr, sig2[sel[0]], gate, lin)
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
-        if lone:
-            _settle(cov, d, lt, rt, dp)
-            _iterated(cov, d, N_FIXED + 3 * slot_of[det_idx[a0 + sel[0]]], z, sig2[sel[0]], ues[sel[0]], hp, smat)
-        else:
-            # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
-            # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
-            for q in range(m):
-                sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-                _hp_rows(hp, 3 * q, cov, dp, lt, rt, sl, d)
-                for c in range(3):
-                    for b in range(3):  # rt is zero in the position columns: their propagation is in dp
-                        hp[3 * q + c, 3 + b] -= dp[b, sl + c]
-            # S = H Σ⁻ Hᵀ + σ² I
-            for q in range(m):
-                sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-                s2 = sig2[sel[q]]
-                jq = sel[q]
-                for c in range(3):
-                    for k in range(k3):
-                        smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
-                    for b in range(3):
-                        smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
-                    smat[3 * q + c, 3 * q + c] += s2
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
+        # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
+        for q in range(m):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            _hp_rows(hp, 3 * q, cov, dp, lt, rt, sl, d)
+            for c in range(3):
+                for b in range(3):  # rt is zero in the position columns: their propagation is in dp
+                    hp[3 * q + c, 3 + b] -= dp[b, sl + c]
+        # S = H Σ⁻ Hᵀ + σ² I
+        for q in range(m):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            s2 = sig2[sel[q]]
+            jq = sel[q]
+            for c in range(3):
+                for k in range(k3):
+                    smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
+                for b in range(3):
+                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
+                smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
                 v = 0.5 * (smat[r, c] + smat[c, r])
