@@ -318,7 +318,8 @@ def clock_set_back(streams: LogStreams) -> list[str]:
         stream = getattr(streams, role)
         if stream is not None and len(stream) >= 50 and stream.topic not in series:
             series[stream.topic] = stream.t_ns
-    origin = int(streams.angular_velocity.t_ns[0]) if streams.angular_velocity is not None else None
+    gyro = streams.angular_velocity
+    origin = int(gyro.t_ns[0]) if gyro is not None and len(gyro.t_ns) else None
     text = set_back_text(series, origin)
     return [] if text is None else [f"warning: {text}"]
 
