@@ -243,3 +243,20 @@ def test_the_marginal_covariances_leave_out_a_landmark_the_gate_left_with_no_det
     assert np.isnan(landmarks[0]).all() and np.isfinite(pose).all()
     assert np.allclose(pose, ref_pose, rtol=1e-8, atol=1e-14)
     assert np.allclose(landmarks[1:], ref_landmarks, rtol=1e-8, atol=1e-14)
+
+
+def test_the_evidence_leaves_out_a_landmark_the_gate_left_with_no_detection(case):
+    """The same for the evidence's ``log det H`` (seed=3973: the levels' evidence after range and bearing were
+    weighed apart read "n/a" there and the level choice kept x1): the objective and the log determinant are those
+    of the problem without the landmark, not None."""
+    from dataclasses import replace
+
+    problem, guess, pt = case
+    kept = np.flatnonzero(problem.det_idx != 0)
+    sol = g.Solution(*pt, bias_cov=np.zeros((N_SEG, 6, 6)))
+    terms = g.evidence_terms(g.with_detections(problem, kept), sol)
+    others = replace(g.with_detections(problem, kept), det_idx=problem.det_idx[kept] - 1)  # without landmark 0
+    ref = g.evidence_terms(others, g.Solution(pt[0], pt[1], pt[2][1:], pt[3], bias_cov=sol.bias_cov))
+    assert terms is not None and ref is not None
+    assert np.allclose(terms, ref, rtol=1e-10, atol=1e-12)
+    assert g.evidence_terms(problem, sol)[1] > terms[1]  # landmark 0's detections add information

@@ -311,55 +311,69 @@ SET_BACK_SHARED = 0.5
 
 
 def clock_set_back(streams: LogStreams) -> list[str]:
-    """A warning (or none) when the recording's clock was set back mid-log, record times and header stamps alike
-    (no stamp steps against record time, so :func:`.decode.clock_steps` sees nothing): every timed topic's samples
-    come about twice as dense over the same stretch, the seconds before the step and those after it interleaved. A
-    figure 8 whose every clock was set back 1.0037 s 20 s in ran riekf 2.94 m off (0.011 m clean) with a misread id
-    as its only word. Windows of ``SET_BACK_PERIODS`` periods of the slowest topic (``CLOCK_STEP_NS`` at least),
-    each topic's count against its median; the windows either side of the dense ones must not be sparse (a
-    recorder that stalls and then writes a burst leaves a gap before it)."""
+    """A warning (or none) when the recording's clock was set back mid-log (:func:`set_back_text`), on the
+    clocks the run reads."""
     series = {}
     for role in _TIMED_ROLES:
         stream = getattr(streams, role)
         if stream is not None and len(stream) >= 50 and stream.topic not in series:
-            steps = np.diff(stream.t_ns)
-            series[stream.topic] = (stream.t_ns, float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0)
-    if len(series) < 2 or min(period for _, period in series.values()) <= 0:
-        return []
-    width = max(CLOCK_STEP_NS, SET_BACK_PERIODS * max(period for _, period in series.values()))
-    start = min(int(t[0]) for t, _ in series.values())
-    end = max(int(t[-1]) for t, _ in series.values())
-    if any(int(t[-1]) - int(t[0]) < SET_BACK_SHARED * (end - start) for t, _ in series.values()):
-        return []  # not one clock (an IMU stamped in ms: 3.4e9 windows, 25 GiB of counts); the pace check says so
+            series[stream.topic] = stream.t_ns
+    gyro = streams.angular_velocity
+    origin = int(gyro.t_ns[0]) if gyro is not None and len(gyro.t_ns) else None
+    text = set_back_text(series, origin)
+    return [] if text is None else [f"warning: {text}"]
+
+
+def set_back_text(series: Mapping[str, np.ndarray], origin: int | None) -> str | None:
+    """What a run and ``info`` say (None: nothing) when the recording's clock was set back mid-log, record times
+    and header stamps alike (no stamp steps against record time, so :func:`.decode.clock_steps` sees nothing):
+    every timed topic's samples (``series``: each topic's stamps in order, on the clock a run reads) come about
+    twice as dense over the same stretch, the seconds before the step and those after it interleaved. A figure 8
+    whose every clock was set back 1.0037 s 20 s in ran riekf 2.94 m off (0.011 m clean) with a misread id as its
+    only word. Windows of ``SET_BACK_PERIODS`` periods of the slowest topic (``CLOCK_STEP_NS`` at least), each
+    topic's count against its median; the windows either side of the dense ones must not be sparse (a recorder
+    that stalls and then writes a burst leaves a gap before it). Times from ``origin`` (the first angular-velocity
+    stamp, as ``time.start`` counts; None: the first stamp)."""
+    series = {topic: t for topic, t in series.items() if len(t) >= 50}
+    periods = {}
+    for topic, t in series.items():
+        steps = np.diff(t)
+        periods[topic] = float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
+    if len(series) < 2 or min(periods.values()) <= 0:
+        return None
+    width = max(CLOCK_STEP_NS, SET_BACK_PERIODS * max(periods.values()))
+    start = min(int(t[0]) for t in series.values())
+    end = max(int(t[-1]) for t in series.values())
+    if any(int(t[-1]) - int(t[0]) < SET_BACK_SHARED * (end - start) for t in series.values()):
+        return None  # not one clock (an IMU stamped in ms: 3.4e9 windows, 25 GiB of counts); the pace check says so
     n = int((end - start) // width)
     if n < 5:
-        return []
+        return None
     dense, sparse, rates = np.ones(n, bool), np.zeros(n, bool), {}
-    for topic, (t, _) in series.items():
+    for topic, t in series.items():
         counts = np.bincount(((t - start) // width).astype(np.int64), minlength=n + 1)[:n].astype(np.float64)
         own = counts[int((int(t[0]) - start) // width) + 1 : int((int(t[-1]) - start) // width)]  # whole windows
         median = float(np.median(own)) if own.size else 0.0
         if median < 5:
-            return []
+            return None
         dense &= counts >= DENSER * median
         sparse |= counts < 0.5 * median
         rates[topic] = median * 1e9 / width
     if not dense.any():
-        return []
+        return None
     first, last = int(np.flatnonzero(dense)[0]), int(np.flatnonzero(dense)[-1])
     if (first and sparse[first - 1]) or (last + 1 < n and sparse[last + 1]):
-        return []
-    origin = int(streams.angular_velocity.t_ns[0]) if streams.angular_velocity is not None else start
-    t0 = (start + first * width - origin) * 1e-9  # on time.start's scale: from the first angular-velocity sample
+        return None
+    t0 = (start + first * width - (start if origin is None else origin)) * 1e-9  # on time.start's scale
     t1 = t0 + (last - first + 1) * width * 1e-9
     shown = ", ".join(f"{topic}'s {rate:.0f} Hz" for topic, rate in list(rates.items())[:3])
-    return [
-        f"warning: every topic's samples come about twice as dense from {t0:.1f} s to {t1:.1f} s into the log as "
+    return (
+        f"every topic's samples come about twice as dense from {t0:.1f} s to {t1:.1f} s into the log as "
         f"elsewhere (against {shown}{', ...' if len(rates) > 3 else ''}): the recording's clock set back mid-log (its "
         "record times and the header stamps alike), so two stretches of the recording interleave there and the run "
         "takes them as one; the estimate from then on is not to be trusted: run the part before or after it "
         "(time.start, time.end)"
-    ]
+    )
 
 
 def _on_record_time(stream: Any) -> Any:
@@ -624,6 +638,19 @@ def run_clocks(
     return out
 
 
+def _set_back(columns: Mapping[str, TopicColumns], roles: Mapping[str, str], clocks: Mapping[str, str]) -> list[str]:
+    """The run's words (:func:`set_back_text`) for a recording clock set back mid-log, on the stamps a run reads
+    (``clocks``: :func:`run_clocks`) of the topics of its timed ``roles``."""
+    series = {}
+    for role in _TIMED_ROLES:
+        cols = columns.get(roles.get(role, ""))
+        if cols is not None and len(cols.t_ns) >= 50 and roles[role] not in series:
+            series[roles[role]] = np.sort(cols.rec_ns if clocks.get(roles[role]) == "record" else cols.t_ns)
+    gyro = series.get(roles.get("angular_velocity", ""))
+    text = set_back_text(series, None if gyro is None else int(gyro[0]))
+    return [] if text is None else [text]
+
+
 def inspect_log(
     path: str | Path,
     msg_dir: str | Path | None = None,
@@ -715,6 +742,7 @@ def inspect_log(
         if sim:
             warnings.append(f"header stamps are simulation time next to wall-clock record times: {', '.join(sim)}")
     warnings += clock_warnings
+    warnings += _set_back(columns, gyro_roles, used)
     warnings += [f"{t.topic}: " + ", ".join(p) for t in topics if (p := _problems(t, off.get(t.topic)))]
     warnings += [note for t in topics for note in nonfinite_notes(t)]
     return LogInfo(

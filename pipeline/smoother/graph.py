@@ -387,6 +387,14 @@ def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple
     return pose, landmarks
 
 
+def border_rows(s: np.ndarray, n_lm: int) -> np.ndarray:
+    """The rows of the border's Schur complement ``s`` (the ``n_lm`` landmarks' 3 rows each, then the biases')
+    the solve constrains: all but those of a landmark left with no detection (the χ² gate dropped them all), whose
+    rows are 0. :func:`border_inverse` and :func:`evidence_terms` leave the others out."""
+    b0 = 3 * n_lm
+    return np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
+
+
 def border_inverse(s: np.ndarray, n_lm: int) -> np.ndarray:
     """The inverse of the border's Schur complement ``s`` (the ``n_lm`` landmarks' 3 rows each, then the biases');
     a landmark left with no detection (the χ² gate dropped them all) has rows of 0 there: its block is NaN and
@@ -395,8 +403,7 @@ def border_inverse(s: np.ndarray, n_lm: int) -> np.ndarray:
     try:
         return np.linalg.inv(s)
     except np.linalg.LinAlgError:
-        b0 = 3 * n_lm
-        keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
+        keep = border_rows(s, n_lm)
         out = np.full_like(s, np.nan)
         out[np.ix_(keep, keep)] = np.linalg.inv(s[np.ix_(keep, keep)])
         return out
@@ -406,7 +413,9 @@ def evidence_terms(problem: Problem, sol: Solution) -> tuple[float, float] | Non
     """The two terms of the Laplace approximation of the evidence that need the solver: the objective ``F`` at the
     solution (half the whitened squares, Huber-robust) and ``log det H`` of the undamped Gauss–Newton normal
     matrix there, ``2 Σ log diag`` of the poses' Cholesky blocks plus the border's Schur complement's log
-    determinant (None: not positive definite)."""
+    determinant (None: not positive definite). A landmark left with no detection (the χ² gate dropped them all)
+    is left out of it (:func:`border_rows`): nothing in the problem depends on it, and its rows of 0 made the
+    determinant 0 (seed=3973, a clock set back 5 s mid-log: the later passes' evidence read "n/a")."""
     ne = Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
     pt = tuple(np.ascontiguousarray(a, float) for a in (sol.rot, sol.pos, sol.landmarks, sol.bias))
     error = ne.error(pt)
@@ -414,7 +423,8 @@ def evidence_terms(problem: Problem, sol: Solution) -> tuple[float, float] | Non
     f = ne.factor(0.0)
     if f is None:
         return None
-    sign, border = np.linalg.slogdet(f[0])
+    keep = border_rows(f[0], ne.n_lm)
+    sign, border = np.linalg.slogdet(f[0][np.ix_(keep, keep)])
     if sign <= 0:
         return None
     chain = 2.0 * float(np.sum(np.log(np.diagonal(ne.dd, axis1=1, axis2=2))))
