@@ -873,10 +873,13 @@ def _gyro_lag(
     needed, most = (
         (GYRO_LAG_GAIN, GYRO_LAG_MAX_MISFIT) if not unseen else (1.0 + 0.5 * (power - 1.0), GYRO_LAG_SLOW_MAX_MISFIT)
     )
-    held = _held_out_gain(t_g, w_g, t_all, b_all, every, fine, half) if gain >= needed else gain
-    if abs(lag) < GYRO_LAG_WARN_S or m_best > most or gain < needed or held < needed:
+    moves = abs(lag) >= GYRO_LAG_WARN_S and m_best <= most and gain >= needed  # then the halves are asked
+    held = _held_out_gain(t_g, w_g, t_all, b_all, every, fine, half) if moves else gain
+    if not moves or held < needed:
         found = f"; the best fit, {abs(lag):.3f} s {late}, is {gain:.3g}x better than as stamped"
-        found += f" ({held:.3g}x on the span's other half, not enough)" * bool(held < needed <= gain)
+        found += f" ({held:.3g}x on the span's other half, not enough)" * bool(moves)
+        if not unseen and moves:  # fast turns: a lag that fit the whole span, not its halves, is not moved unsaid
+            return [f"{gyro_topic}: its stamps were not moved against {twist.topic}'s own angular velocity{found}"], 0.0
         return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else [], 0.0
     as_read = f"{m0:.3g}" if np.isfinite(m0) else "none (too little overlap)"
     slow = f"; slow turns: a {GYRO_LAG_PROBE_S:g} s lag fits only {power:.3g}x worse than the best" if unseen else ""
