@@ -1473,8 +1473,12 @@ def test_a_slow_hand_held_odometrys_velocity_scale_is_named_and_its_twin_as_reco
         write_log(sim, log, overwrite=True)
         prepared = prepare_log(log, load_config(None))
         assert "from the means of sample pairs" in prepared.velocity_noise.method  # its z folded
+        assert prepared.aligned.gyro_moved_s == 0.0  # no lag drawn (session 36: moved -0.065 s on noise)
         offset = time_offset.estimate(prepared.aligned)
-        assert offset["applied"] == (late != 0.0), offset.get("why_not_applied")
+        # the 0.3 s found (within 0.04 s); applied, or held back as its halves disagree on this 4 Hz twist (-0.262
+        # and -0.314 s: applied at -0.326 s only while the gyro was moved 0.065 s on noise, before session 36)
+        assert abs(offset["estimate_s"] + late) < 0.04, offset
+        assert offset["applied"] == (late != 0.0) or "halves disagree" in offset["why_not_applied"], offset
         return [n for n in time_offset.note("riekf", offset) if "the detections say the body moved" in n]
 
     assert said(1.0) == []
