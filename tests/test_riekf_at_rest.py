@@ -1,5 +1,6 @@
-"""riekf on a body at rest: the samples judged still (``base.still_mask``) and the biases they read
-(``riekf._still_update``; docs/benchmarks.md, "A robot at rest with one landmark in view, session 36")."""
+"""riekf and batch on a body at rest: the samples judged still (``base.still_mask``) and the biases they read
+(``riekf._still_update``, the smoother's ``graph.Problem.still``; docs/benchmarks.md, "A robot at rest with one
+landmark in view, session 36")."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ from dataclasses import replace
 
 import numpy as np
 import pyarrow.parquet as pq
+import pytest
 
 from slamobs.pipeline.observers.base import still_mask
 
@@ -30,24 +32,24 @@ def test_still_mask_takes_a_biased_reading_at_rest_as_still_and_motion_or_a_chan
     assert not still[(t > 42) & (t < 58)].any()
 
 
-def test_riekf_at_rest_with_one_landmark_in_view_reads_its_gyro_bias_and_keeps_its_heading(tmp_path):
+LO, LENGTH = 15.0, 45.0  # the stop (s into the log)
+
+
+@pytest.fixture(scope="module")
+def rest_log(tmp_path_factory):
     """The generated ground robot (seed=3962's rig: gyro x30, velocity x10, 200/10 Hz) at rest 15-60 s of 70 with
-    one landmark in every frame there: a heading and a tangential velocity bias that turn the body about that
-    landmark leave its detections unchanged, so before the still windows were measurements the gyro's z bias
-    stayed 0.006 rad/s off and the heading turned with it (rotation APE 9.6 deg); read at rest, the bias is within
-    0.003 rad/s of the truth at the stop's end and the rotation APE under 5 deg."""
-    from slamobs.pipeline.api import run_log
+    one landmark in every frame there, and its true gyro bias."""
     from slamobs.pipeline.noise import DEFAULTS
     from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
     from slamobs.pipeline.simulate.scenarios import get_scenario
 
     sc = get_scenario("ground")
-    base, lo, length = sc.trajectory, 15.0, 45.0
+    base = sc.trajectory
 
     def trajectory(t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        still = (t >= lo) & (t < lo + length)
-        tr = base(t - np.clip(t - lo, 0.0, length))
+        still = (t >= LO) & (t < LO + LENGTH)
+        tr = base(t - np.clip(t - LO, 0.0, LENGTH))
         z = lambda a: np.where(still[:, None], 0.0, a)  # noqa: E731
         return replace(tr, t=t, omega=z(tr.omega), v=z(tr.v), accel=z(tr.accel))
 
@@ -61,15 +63,27 @@ def test_riekf_at_rest_with_one_landmark_in_view_reads_its_gyro_bias_and_keeps_i
     sim = simulate(replace(sc, trajectory=trajectory), noise=nm, duration=70.0, seed=3962, imu_rate=200, odom_rate=10)
     det = sim.detections
     at_rest = (det.t_ns - det.t_ns[0]) * 1e-9
-    at_rest = (at_rest > lo + 1) & (at_rest < lo + length - 1)
+    at_rest = (at_rest > LO + 1) & (at_rest < LO + LENGTH - 1)
     assert np.all(np.diff(det.offsets)[at_rest] == 1)  # one landmark in view throughout the stop
-    log = tmp_path / "rest.mcap"
+    log = tmp_path_factory.mktemp("rest") / "rest.mcap"
     write_log(sim, log)
+    return log, np.asarray(sc.gyro_bias)
+
+
+@pytest.mark.parametrize("estimator", ["riekf", "batch"])
+def test_at_rest_with_one_landmark_in_view_the_gyro_bias_is_read_and_the_heading_kept(rest_log, tmp_path, estimator):
+    """A heading and a tangential velocity bias that turn the body about the one landmark in view leave its
+    detections unchanged, so before the still samples were measurements the gyro's z bias stayed 0.004-0.006
+    rad/s off and the heading turned with it (rotation APE riekf 9.6 deg, batch 14.6); read at rest, the bias is
+    within 0.003 rad/s of the truth at the stop's end and the rotation APE under 5 deg (riekf 2.2, batch 1.1)."""
+    from slamobs.pipeline.api import run_log
+
+    log, gyro_bias = rest_log
     out = tmp_path / "run"
-    run_log(log, out, observer="riekf", config={"evaluation": {"plots": False}})
+    run_log(log, out, observer=estimator, config={"evaluation": {"plots": False}})
     report = json.loads((out / "report.json").read_text())
     bias = pq.read_table(out / "biases.parquet").to_pandas()
     t = (bias.t_ns.values - bias.t_ns.values[0]) * 1e-9
-    end = int(np.searchsorted(t, lo + length - 1.0))
-    assert abs(bias.gyro_bias_z.values[end] - sc.gyro_bias[2]) < 0.003, (bias.gyro_bias_z.values[end], sc.gyro_bias)
+    end = int(np.searchsorted(t, LO + LENGTH - 1.0))
+    assert abs(bias.gyro_bias_z.values[end] - gyro_bias[2]) < 0.003, (bias.gyro_bias_z.values[end], gyro_bias)
     assert report["ape"]["rotation_deg"]["rmse"] < 5.0, report["ape"]["rotation_deg"]

@@ -2081,7 +2081,7 @@ class RiEKF(Stepper):
         self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, white, stream.velocity_period_ns * 1e-9)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         # the samples at rest (module docstring, "At rest"), judged on the white levels
-        self.still = still_mask(stream.vel_t_ns, stream.omega, stream.velocity, white.gyro**2, nz.velocity**2)
+        self.still = still_mask(stream.vel_t_ns, stream.omega, stream.velocity, white.gyro**2, nz.velocity**2, nz.held)
         # the gyro's only where the angular velocity is an IMU's gyro (its own topic, not held) on a ground robot on
         # its floor: an odometry's or a VIO's angular velocity has no gyro bias that walks, and off the floor other
         # errors passed its ratio where no walk was seen to (module docstring, "Gyro-bias walk")

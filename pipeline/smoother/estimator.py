@@ -586,6 +586,7 @@ class BatchSmoother(Stepper):
             huber=st.huber,
             anchor=k - 1,
             floor=floor_information(kf_t) if self.floor["held"] else None,
+            still=self._still_reading(segments, nz),
             **self._detections(kf_of_det),
         )
 
@@ -675,6 +676,25 @@ class BatchSmoother(Stepper):
             "det_sigma": self.noise.detection_sigma(ranges) * factor,
             "det_shape": self.det_shape,
         }
+
+    def _still_reading(self, segments: _Segments, nz) -> np.ndarray | None:
+        """Each bias segment's reading at rest (``graph.Problem.still``): the means of the gyro and the velocity
+        over its samples at rest (``base.still_mask``), with the densities' variances over their span (the
+        samples times their median interval); None without a still sample."""
+        from slamobs.pipeline.observers.base import still_mask
+
+        s = self.stream
+        still = still_mask(s.vel_t_ns, s.omega, s.velocity, nz.gyro**2, nz.velocity**2, nz.held)
+        if self.vel_t.shape[0] < 2 or not still.any():
+            return None
+        period = float(np.median(np.diff(self.vel_t)))
+        seg = segments.of(self.vel_t[still])
+        n = np.bincount(seg, minlength=segments.n).astype(float)
+        rows = np.concatenate([s.omega[still], s.velocity[still]], axis=1)
+        sums = np.stack([np.bincount(seg, weights=rows[:, c], minlength=segments.n) for c in range(6)], axis=1)
+        mean = sums / np.maximum(n, 1.0)[:, None]
+        info = (n * period)[:, None] / np.r_[nz.gyro**2, nz.velocity**2][None, :]
+        return np.concatenate([mean, info], axis=1)
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
         """The relative-motion factors' data: the odometry preintegrated between keyframes about ``b_bar`` with

@@ -60,6 +60,9 @@ class Problem:
     det_shape: np.ndarray | None = None
     #: (K, 2) each keyframe's floor information (the tilt rows' and the height row's ``1/σ²``), or None: no floor
     floor: np.ndarray | None = None
+    #: (S, 12) each bias segment's reading at rest (the gyro's and velocity's means over its still samples,
+    #: ``base.still_mask``) and its information (``1/σ²`` per component, 0 where none), or None: no still samples
+    still: np.ndarray | None = None
 
 
 @dataclass
@@ -127,6 +130,8 @@ class Normal:
         total += 0.5 * np.sum(((bias[0] - p.bias_prior_mean) / p.bias_prior_sigma) ** 2)
         if p.walk_sigma is not None:
             total += 0.5 * np.sum((np.diff(bias, axis=0) / p.walk_sigma) ** 2)
+        if p.still is not None:
+            total += 0.5 * float(np.sum(p.still[:, 6:] * (bias - p.still[:, :6]) ** 2))
         dev = self._gauge_deviation(rot, pos) / GAUGE_SIGMA
         if p.floor is not None:
             r, _ = floor_terms(self.plane, rot, pos)
@@ -160,6 +165,11 @@ class Normal:
         prior = 1.0 / p.bias_prior_sigma**2
         self.c[b0 : b0 + 6, b0 : b0 + 6] += np.diag(prior)
         self.gb[b0 : b0 + 6] += prior * (bias[0] - p.bias_prior_mean)
+        if p.still is not None:  # at rest the biases are read (riekf's _still_update)
+            for s in range(self.n_seg):
+                i = b0 + 6 * s
+                self.c[i : i + 6, i : i + 6] += np.diag(p.still[s, 6:])
+                self.gb[i : i + 6] += p.still[s, 6:] * (bias[s] - p.still[s, :6])
         if p.walk_sigma is not None:
             w = 1.0 / p.walk_sigma**2
             for s in range(self.n_seg - 1):
