@@ -587,7 +587,7 @@ class BatchSmoother(Stepper):
             huber=st.huber,
             anchor=k - 1,
             floor=floor_information(kf_t) if self.floor["held"] else None,
-            still=self._still_reading(segments, nz),
+            still=self._still_reading(segments, nz, b_bar),
             **self._detections(kf_of_det),
         )
 
@@ -678,26 +678,46 @@ class BatchSmoother(Stepper):
             "det_shape": self.det_shape,
         }
 
-    def _still_reading(self, segments: _Segments, nz) -> np.ndarray | None:
+    def _still_reading(self, segments: _Segments, nz, b_bar: np.ndarray) -> np.ndarray | None:
         """Each bias segment's reading at rest (``graph.Problem.still``): the means of the gyro and the velocity
         over its samples at rest (``base.still_mask``), with the densities' variances over their span (the
-        samples times their median interval); None without a still sample."""
-        from slamobs.pipeline.observers.base import still_mask
+        samples times their median interval); None without one. The samples are taken in windows of
+        ``MOTION_MEAN_WINDOW_S`` s, as riekf's, and a window whose means sit further from the seed's biases
+        ``b_bar`` than riekf's gate ``GATE_CHI2`` (under their variance and the bias walks' over the log) is left
+        out: a body turning in place at a steady rate reads like one at rest but for its rate."""
+        from slamobs.pipeline.observers.base import MOTION_MEAN_WINDOW_S, still_mask
+        from slamobs.pipeline.observers.riekf import GATE_CHI2
 
         s, key = self.stream, (tuple(np.ravel(nz.gyro)), tuple(np.ravel(nz.velocity)), tuple(nz.held))
         if self._still_key != key:  # once per levels (0.4 CPU s on an hour's 200 Hz samples)
             self._still_key = key
             self._still = still_mask(s.vel_t_ns, s.omega, s.velocity, nz.gyro**2, nz.velocity**2, nz.held)
-        still = self._still
-        if self.vel_t.shape[0] < 2 or not still.any():
+        idx = np.flatnonzero(self._still)
+        if self.vel_t.shape[0] < 2 or not idx.size:
             return None
         period = float(np.median(np.diff(self.vel_t)))
-        seg = segments.of(self.vel_t[still])
-        n = np.bincount(seg, minlength=segments.n).astype(float)
-        rows = np.concatenate([s.omega[still], s.velocity[still]], axis=1)
-        sums = np.stack([np.bincount(seg, weights=rows[:, c], minlength=segments.n) for c in range(6)], axis=1)
+        q = np.r_[np.broadcast_to(nz.gyro**2, 3), np.broadcast_to(nz.velocity**2, 3)]
+        span = self.vel_t[-1] - self.vel_t[0]
+        walk = np.r_[np.full(3, nz.gyro_bias_walk**2), np.full(3, nz.velocity_bias_walk**2)] * span
+        run = np.cumsum(np.r_[1, np.diff(idx) > 1])  # consecutive samples at rest, cut into windows
+        start = self.vel_t[idx][np.r_[0, np.flatnonzero(np.diff(run)) + 1]][run - 1]
+        win = np.unique(np.c_[run, (self.vel_t[idx] - start) // MOTION_MEAN_WINDOW_S], axis=0, return_inverse=True)[
+            1
+        ].ravel()
+        rows = np.concatenate([s.omega[idx], s.velocity[idx]], axis=1)
+        n_w = np.bincount(win).astype(float)
+        mean_w = np.stack([np.bincount(win, weights=rows[:, c]) for c in range(6)], axis=1) / n_w[:, None]
+        d2 = np.sum((mean_w - b_bar) ** 2 / (q / (n_w[:, None] * period) + walk), axis=1)
+        kept = d2 < GATE_CHI2
+        if not kept.any():
+            return None
+        seg = segments.of(self.vel_t[idx[np.r_[0, np.flatnonzero(np.diff(win)) + 1]]])[kept]
+        n = np.bincount(seg, weights=n_w[kept], minlength=segments.n)
+        sums = np.stack(
+            [np.bincount(seg, weights=(mean_w * n_w[:, None])[kept, c], minlength=segments.n) for c in range(6)], axis=1
+        )
         mean = sums / np.maximum(n, 1.0)[:, None]
-        info = (n * period)[:, None] / np.r_[nz.gyro**2, nz.velocity**2][None, :]
+        info = (n * period)[:, None] / q[None, :]
         return np.concatenate([mean, info], axis=1)
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
