@@ -161,3 +161,78 @@ def test_detections_on_the_imu_clock_beside_an_odometry_half_a_second_off_are_fo
     said = time_offset.note("riekf", record)
     assert any("so the odometry is the stream stamped 0.500 s late" in n for n in said), said
     assert not any("scale" in n for n in said), said
+
+
+def _odometry_log(tmp_path, sampling: str, early: float = 0.0):
+    """benchmarks/handheld_logs.py's rig with IMU and odometry at 4 Hz, each sample instantaneous or the mean over
+    the interval before its stamp (``simulate(sampling=...)``), the detections ``early`` s early."""
+    from slamobs.pipeline.noise import DEFAULTS
+    from slamobs.pipeline.simulate import NoiseModel
+    from slamobs.pipeline.simulate.scenarios import handheld
+
+    nm = NoiseModel(gyro=30 * DEFAULTS["gyro"][0] * 2.0, odom_linear=10 * DEFAULTS["velocity"][0] * 2.0)  # at 4 Hz
+    sim = simulate(
+        handheld(),
+        noise=nm,
+        duration=60.0,
+        seed=3928,
+        imu_rate=4.0,
+        odom_rate=4.0,
+        detection_offset=-early,
+        sampling=sampling,
+    )
+    return sim, write_log(sim, tmp_path / f"{sampling}{early:g}.mcap")
+
+
+@pytest.mark.parametrize(("early", "applied"), [(0.0, False), (0.1, True)])
+def test_a_4_hz_odometry_twist_of_interval_means_moves_the_searchs_zero_by_half_an_interval(tmp_path, early, applied):
+    # the odometry's twist is both velocities (as TagSLAM test_22's) and each sample the mean over the interval before
+    # its stamp: the search, holding each sample, lags a whole interval, 0.25 s, not half of one (h-meanoffset: an
+    # on-time log got +0.249 s applied, riekf and batch then 2-3x worse). The twist fits its own poses' increment over
+    # the interval before each stamp: read as interval means, the search's zero moved; 0.1 s early is still applied
+    from slamobs.pipeline.readers import read_log
+
+    _, log = _odometry_log(tmp_path, "mean", early)
+    streams = read_log(log, {"angular_velocity": "/odom"})
+    assert streams.twist_sampling["model"] == "mean", streams.twist_sampling
+    stream = align(streams)
+    offset = time_offset.decide(stream)
+    assert abs(time_offset.hold_lag(stream) - 0.25) < 0.005
+    assert offset["sampling"]["model"] == "mean", offset["sampling"]
+    assert offset["applied"] == applied, offset
+    assert abs(offset["estimate_s"] - (early + 0.25)) < 0.02, (
+        offset
+    )  # the search reads the offset plus a whole interval
+    if not applied:
+        assert "they are means over the interval before each stamp" in offset["why_not_applied"], offset
+
+
+def test_an_odometry_twist_is_read_against_its_own_poses(tmp_path):
+    # interval means fit the poses' increment before each stamp; instantaneous samples the central difference of
+    # poses that follow the motion (a VIO's); poses dead-reckoned by holding each twist until the next fit the
+    # increment after it and say nothing of the sampling. Only the first moves the search's zero
+    from slamobs.pipeline.readers.odometry import twist_sampling
+    from slamobs.pipeline.simulate.scenarios import handheld
+    from slamobs.pipeline.streams import PoseStream, Vec3Stream
+
+    def read(sim, truth_poses: bool) -> dict:
+        o = sim.odom
+        position, quat = o.position, o.quat_xyzw
+        if truth_poses:
+            from slamobs.pipeline.lie import rots_to_quats
+
+            tr = handheld().sample((o.t_ns - sim.start_ns) * 1e-9)
+            position, quat = tr.P, rots_to_quats(tr.R)
+        poses = PoseStream("/odom", "odom", "base_link", o.t_ns, o.rec_ns, position, quat)
+        twist = lambda xyz: Vec3Stream("/odom", "base_link", o.t_ns, o.rec_ns, xyz)  # noqa: E731
+        return twist_sampling(poses, twist(o.angular), twist(o.linear))
+
+    from slamobs.pipeline.readers import read_log
+
+    mean, _ = _odometry_log(tmp_path, "mean")
+    inst, inst_log = _odometry_log(tmp_path, "instant")
+    assert read(mean, False)["model"] == "mean"
+    assert read(inst, True)["model"] == "instant"
+    assert read(inst, False)["model"] == "held"
+    record = time_offset.decide(align(read_log(inst_log, {"angular_velocity": "/odom"})))["sampling"]
+    assert record["model"] == "instant" and "dead-reckoned" in record["why"], record
