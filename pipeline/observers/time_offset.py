@@ -482,24 +482,25 @@ def interval_means(stream) -> bool:
     return bool(read) and read.get("model") == "mean"
 
 
+#: Why the search's lag assumes the sampling model it does (:func:`sampling_record`), by the odometry's reading
+#: (``readers.odometry.SAMPLING_CANDIDATES``; None: not told, "": no reading).
+_SAMPLING_WHY = {
+    "mean": "the twist fits its own poses' increment over the interval before each stamp",
+    "instant": "the twist fits its own poses' central difference at each stamp",
+    "held": "the poses were dead-reckoned from the twist, which says nothing of its sampling",
+    None: "its own poses do not tell the twist's sampling",
+    "": "nothing in the log tells",
+}
+
+
 def sampling_record(stream) -> dict:
     """The record's ``sampling``: the model the search's lag assumes (``mean`` or ``instant``) and why, with the
     odometry's reading where there is one (:func:`interval_means`)."""
     read = getattr(stream, "twist_sampling", None)
-    if not read:
-        why = "nothing in the log tells: each velocity sample taken as the motion at its stamp"
-    elif read.get("model") == "mean":
-        why = "the twist fits its own poses' increment over the interval before each stamp"
-    elif read.get("model") in ("instant", "held"):
-        why = (
-            "the twist fits its own poses' central difference at each stamp"
-            if read["model"] == "instant"
-            else "the poses were dead-reckoned from the twist, which says nothing of its sampling"
-        ) + ": each velocity sample taken as the motion at its stamp"
-    else:
-        why = "its own poses do not tell the twist's sampling: each velocity sample taken as the motion at its stamp"
-    model = "mean" if interval_means(stream) else "instant"
-    return {"model": model, "why": why, **({"read": read} if read else {})}
+    why = _SAMPLING_WHY[read["model"] if read else ""]
+    if not interval_means(stream):
+        why += ": each velocity sample taken as the motion at its stamp"
+    return {"model": "mean" if interval_means(stream) else "instant", "why": why, **({"read": read} if read else {})}
 
 
 #: How ``why_not_applied`` begins where only the halves' check held an offset back (:func:`unapplied_note`).
