@@ -11,6 +11,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round5 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round6 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
@@ -20,7 +21,10 @@ away, the twist in the odometry frame, the gyro in deg/s, unset stamps, duplicat
 (docs/benchmarks.md, "Logs nobody has run yet, round 6"). ``--set round7``: session 35's (``ROUND7``): an IMU upside
 down, a twist turned 180 deg or 5 % long, an odometry clock 0.5 s off, a saturating gyro, a log ending blind, a
 landmark seen once, 2 or 500 landmarks, duplicated, bursty or reordered detections, unset IMU stamps, a late
-/tf_static, a wrong stated camera extrinsic (docs/benchmarks.md, "Logs nobody has run yet, round 7").
+/tf_static, a wrong stated camera extrinsic (docs/benchmarks.md, "Logs nobody has run yet, round 7"). ``--set
+round8``: session 36's (``ROUND8``): a 1 kHz IMU, still for 80 % of the log, the truth at 1 Hz, lost or late, a
+camera on a lever arm or looking backwards, covariances stated 1e-4x, an id reused, a clock jumping back, a vehicle
+that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run yet, round 8").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -91,7 +95,8 @@ class Case:
     # round 7: a rig's mounting, clocks and transport, and scenes at their extremes
     imu_rpy_deg: tuple[float, float, float] | None = None  # the IMU's mounting (its tf_static saying so)
     twist_yaw_deg: float = 0.0  # the twist written in a frame turned this much about z (its frame id unchanged)
-    velocity_scale: float = 1.0  # the twist's linear velocity times this (a wheel radius or scale error)
+    # the twist's linear velocity times this (a wheel radius or scale error), or per body axis (x, y, z)
+    velocity_scale: float | tuple[float, float, float] = 1.0
     odom_clock_s: float = 0.0  # added to the odometry's header stamps (its clock off the IMU's)
     gyro_clip: float = 0.0  # the gyro saturating at this many rad/s per axis
     once: int = 0  # this many landmarks each kept in one detection only
@@ -100,6 +105,13 @@ class Case:
     det_shuffle_s: float = 0.0  # the detections' record times moved by uniform +-det_shuffle_s
     tf_late_s: float = 0.0  # /tf_static and the truth recorded this long after the first messages
     tf_yaw_deg: float = 0.0  # the camera's stated extrinsic turned this much about the body's z (the camera not)
+    # round 8: the truth's own faults, a lever arm, ids reused, a clock jumping back, a heading motion never shows
+    truth_hz: float = 100.0  # the motion capture's rate
+    truth_gap: tuple[float, float, str] | None = None  # (start s, stop s, "frozen" or "nan"): mocap lost track
+    truth_late_s: float = 0.0  # added to the motion capture's stamps
+    cam_t: tuple[float, float, float] | None = None  # the camera's position on the body (its tf_static saying so)
+    reused_id: tuple[int, int, float] | None = None  # (a, b, from s): tag a gone, tag b carries id a (b unseen before)
+    clock_back: tuple[float, float] | None = None  # (at s, back s): every stamp and record after it moved back
 
 
 CASES = (
@@ -315,7 +327,56 @@ CLIPPED = (
     Case(3861, "handheld", 90, "gyro clipped at 2 rad/s", wobble=0.6, gyro_clip=2.0, **R6),
     Case(3862, "flight", 90, "flight, gyro clipped at 1 rad/s", "ros2", wobble=0.6, gyro_clip=1.0, **R6),
 )
-SETS = {"round4": CASES, "round5": ROUND5, "round6": ROUND6, "round7": ROUND7, "clipped": CLIPPED}
+#: round 8 (session 36, docs/benchmarks.md "Logs nobody has run yet, round 8"): a 1 kHz IMU, a rig still for 80 % of
+#: its log, a truth at 1 Hz, lost for 10 s (frozen or NaN) or 0.2 s late, a camera on a 0.3 m lever arm or looking
+#: backwards, covariances stated 1e-4x, a tag id reused by another tag, a clock jumping back 5 s, a vehicle that only
+#: drives straight, two hours
+ROUND8 = (
+    Case(3960, "handheld", 90, "1 kHz IMU", imu_hz=1000, odom_hz=10),
+    Case(3961, "flight", 90, "flight, 1 kHz IMU", "bag", imu_hz=1000, odom_hz=10),
+    Case(3962, "ground", 150, "ground robot still 80 % (15-135 s)", stops=((15.0, 120.0),), **R6),
+    Case(3963, "handheld", 120, "still 80 % in 4 stops", "ros2", stops=tuple((s, 24.0) for s in (6, 36, 66, 96)), **R6),
+    Case(3964, "handheld", 90, "truth at 1 Hz", truth_hz=1.0, **R6),
+    Case(3965, "handheld", 90, "truth frozen 10 s (40-50 s)", "bag", truth_gap=(40.0, 50.0, "frozen"), **R6),
+    Case(3966, "flight", 90, "flight, truth NaN 10 s (40-50 s)", truth_gap=(40.0, 50.0, "nan"), **R6),
+    Case(3967, "handheld", 90, "truth stamps +0.2 s", "ros2", truth_late_s=0.2, **R6),
+    Case(3968, "handheld", 90, "camera on a 0.3 m lever arm", cam_t=(0.25, -0.15, 0.08), **R6),
+    Case(3969, "flight", 90, "flight, camera 0.3 m lever arm", "bag", cam_t=(-0.2, 0.2, -0.1), **R6),
+    Case(3970, "handheld", 90, "covariances stated 1e-4x", stated=1e-4, **R6),
+    Case(3971, "ground", 180, "ground robot, covariances stated 1e-4x", "ros2", stated=1e-4, **R6),
+    Case(3972, "handheld", 90, "id 21 (gone at 38 s) reused by tag 38 from 40 s", reused_id=(21, 38, 40.0), **R6),
+    Case(3973, "handheld", 90, "clock back 5 s at 45 s (two recordings)", clock_back=(45.0, 5.0), **R6),
+    Case(3974, "ground", 180, "ground, clock back 5 s at 90 s", "bag", clock_back=(90.0, 5.0), **R6),
+    Case(3975, "straight", 180, "drives only straight (shuttle)", **R6),
+    Case(3976, "straight", 180, "drives only straight, 4 Hz odometry", "ros2", imu_hz=100, odom_hz=4),
+    Case(3977, "handheld", 90, "camera looking backwards", cam_yaw_deg=180, **R6),
+    Case(3978, "flight", 90, "flight, camera looking backwards", "ros2", cam_yaw_deg=180, **R6),
+    Case(3979, "ground", 7200, "ground robot, 2 hours", imu_hz=100, odom_hz=10, gyro_x=10, velocity_x=5),
+)
+#: a saturating gyro's held stretches filled (session 36, docs/benchmarks.md "A saturating gyro's stretches filled"):
+#: flights and ground robots, clips of 0.2-3 rad/s, short and long stretches, quiet and noisy gyros, and clips only
+#: one side of the rate reaches (a flight's yaw rate +1.57/-1.16 rad/s, a loop's +0.25/-0.04)
+CLIPPED2 = (
+    Case(3950, "flight", 90, "flight, gyro clipped at 0.5 rad/s", wobble=0.6, gyro_clip=0.5, **R6),
+    Case(3951, "flight", 90, "flight, quiet gyro clipped at 1.2, one side", "ros2", gyro_x=3, gyro_clip=1.2, **R6),
+    Case(3952, "ground", 180, "ground robot, quiet gyro clipped at 0.25 rad/s", "bag", gyro_x=3, gyro_clip=0.25, **R6),
+    Case(3953, "loop", 120, "loop, gyro clipped at 0.2 rad/s (one side)", gyro_clip=0.2, **R6),
+    Case(3954, "handheld", 90, "hand-held, gyro clipped at 1.2 rad/s (short stretches)", gyro_clip=1.2, **R6),
+    Case(3955, "handheld", 60, "hand-held, quiet gyro clipped at 0.5 rad/s", wobble=0.6, gyro_x=3, gyro_clip=0.5, **R6),
+    Case(3956, "handheld", 90, "hand-held, gyro clipped at 3 rad/s (never reached)", wobble=0.6, gyro_clip=3.0, **R6),
+    Case(3957, "flight", 90, "flight, 100 Hz gyro clipped at 0.8 rad/s", "bag", imu_hz=100, odom_hz=10, gyro_clip=0.8),
+    Case(3958, "handheld", 90, "hand-held, quiet gyro clipped at 2 rad/s", wobble=0.6, gyro_x=1, gyro_clip=2.0, **R6),
+    Case(3959, "ground", 180, "ground robot, gyro clipped at 0.2 rad/s", "ros2", gyro_clip=0.2, **R6),
+)
+SETS = {
+    "round4": CASES,
+    "round5": ROUND5,
+    "round6": ROUND6,
+    "round7": ROUND7,
+    "clipped": CLIPPED,
+    "round8": ROUND8,
+    "clipped2": CLIPPED2,
+}
 
 
 def spin_trajectory(t):
@@ -326,6 +387,19 @@ def spin_trajectory(t):
     zero, n = np.zeros_like(t), len(t)
     P = np.tile([0.0, 0.0, 1.5], (n, 1))
     return Trajectory(t, rot_z(psi), P, np.stack([zero, zero, psid], -1), np.zeros((n, 3)), np.zeros((n, 3)))
+
+
+def straight_trajectory(t):
+    """A vehicle that only drives straight: the ground robot shuttling 4 m either side of the room's middle along
+    a fixed heading (0.5 rad), forward and back in reverse at up to 0.63 m/s, its roll and pitch still."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    w, a, psi = 2 * np.pi / 40.0, 4.0, 0.5
+    s, sd, sdd = a * np.sin(w * t), a * w * np.cos(w * t), -a * w * w * np.sin(w * t)
+    u = np.array([np.cos(psi), np.sin(psi), 0.0])
+    n = len(t)
+    P = s[:, None] * u + np.array([0.0, 0.0, 0.3])
+    v = np.stack([sd, np.zeros(n), np.zeros(n)], -1)
+    return Trajectory(t, np.repeat(rot_z(np.array([psi])), n, 0), P, np.zeros((n, 3)), v, sdd[:, None] * u)
 
 
 def with_stops(base, stops: tuple[tuple[float, float], ...]):
@@ -358,7 +432,9 @@ def scaled(sc, k: float):
 
 
 def scenario(case: Case):
-    if case.scenario == "spin":
+    if case.scenario == "straight":
+        sc = replace(get_scenario("ground"), name="straight", trajectory=straight_trajectory)
+    elif case.scenario == "spin":
         sc = replace(handheld(), name="spin", trajectory=spin_trajectory)
     elif case.scenario == "flight":
         sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory())
@@ -369,6 +445,8 @@ def scenario(case: Case):
     if case.cam_yaw_deg:
         turn = rot_z(np.array([np.deg2rad(case.cam_yaw_deg)]))[0]
         sc = replace(sc, camera=replace(sc.camera, R_bc=turn @ sc.camera.R_bc))
+    if case.cam_t:
+        sc = replace(sc, camera=replace(sc.camera, t_bc=np.asarray(case.cam_t, float)))
     if case.scale != 1.0:
         sc = scaled(sc, case.scale)
     if case.stops:
@@ -451,9 +529,9 @@ def misdrawn7(sim, case: Case):
     records in bursts, a late /tf_static, a wrong stated camera extrinsic."""
     rng = np.random.default_rng(case.seed + 13)
     det, imu, odom = sim.detections, sim.imu, sim.odom
-    if case.twist_yaw_deg or case.velocity_scale != 1.0:
+    if case.twist_yaw_deg or np.any(np.asarray(case.velocity_scale) != 1.0):
         turn = rot_z(np.array([np.deg2rad(case.twist_yaw_deg)]))[0]
-        odom = replace(odom, linear=case.velocity_scale * odom.linear @ turn.T)
+        odom = replace(odom, linear=np.asarray(case.velocity_scale) * (odom.linear @ turn.T))
     if case.odom_clock_s:
         odom = replace(odom, t_ns=odom.t_ns + int(round(case.odom_clock_s * 1e9)))
     if case.gyro_clip:
@@ -491,6 +569,42 @@ def misdrawn7(sim, case: Case):
     if case.tf_late_s:
         sim = replace(sim, start_ns=sim.start_ns + int(round(case.tf_late_s * 1e9)))
     return sim
+
+
+def misdrawn8(sim, case: Case):
+    """Round 8's changes to the drawn log (no draws of their own): the motion capture lost for a while or late,
+    a tag id reused by another tag, every stamp and record time after a moment moved back (two recordings
+    concatenated)."""
+    moc, det = sim.mocap, sim.detections
+    if case.truth_gap:
+        lo, hi, how = case.truth_gap
+        t = (moc.t_ns - sim.start_ns) * 1e-9
+        sel = (t >= lo) & (t < hi)
+        pos, quat = moc.position.copy(), moc.quat_xyzw.copy()
+        if how == "nan":
+            pos[sel], quat[sel] = np.nan, np.nan
+        else:
+            last = np.flatnonzero(t < lo)[-1]
+            pos[sel], quat[sel] = pos[last], quat[last]
+        moc = replace(moc, position=pos, quat_xyzw=quat)
+    if case.truth_late_s:
+        moc = replace(moc, t_ns=moc.t_ns + int(round(case.truth_late_s * 1e9)))
+    if case.reused_id:
+        a, b, t0 = case.reused_id
+        frame = np.repeat(np.arange(len(det.t_ns)), np.diff(det.offsets))
+        late = (det.t_ns[frame] - sim.start_ns) * 1e-9 >= t0
+        keep = ~((det.ids == a) & late) & ~((det.ids == b) & ~late)
+        ids = np.where((det.ids == b) & late, a, det.ids)
+        det = _frames(replace(det, ids=ids), keep)
+    streams = {"imu": sim.imu, "odom": sim.odom, "detections": det, "mag": sim.mag, "mocap": moc}
+    if case.clock_back:
+        at, back = (int(round(x * 1e9)) for x in case.clock_back)
+        for name, d in streams.items():
+            after = d.rec_ns >= sim.start_ns + at
+            streams[name] = replace(
+                d, t_ns=np.where(after, d.t_ns - back, d.t_ns), rec_ns=np.where(after, d.rec_ns - back, d.rec_ns)
+            )
+    return replace(sim, **streams)
 
 
 def perturb(sim, case: Case):
@@ -531,11 +645,12 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
         detection_per_m=case.law[1],
     )
     kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
+    kw |= {"mocap_rate": case.truth_hz} if case.truth_hz != 100.0 else {}
     sc = scenario(case)
     sim = simulate(
         sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, sampling=case.sampling, **kw
     )
-    sim = misdrawn7(misdrawn(perturb(sim, case), case, sc), case)
+    sim = misdrawn8(misdrawn7(misdrawn(perturb(sim, case), case, sc), case), case)
     stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
     if case.truncate:

@@ -33,6 +33,7 @@ from slamobs.pipeline.noise_estimation import (
     detection_ratio,
     held_motion_noise,
     log_triplets,
+    twist_drift,
     unresolved_motion_density,
     white_noise_density,
 )
@@ -94,6 +95,16 @@ STATED_LOW = 1 / 3
 #: samples' high-frequency content is a lower bound of noise that is coloured (a VIO's or a filtered
 #: odometry's), which a driver may know better
 STATED_BELOW, STATED_ABOVE = STATED_LOW, 100.0
+#: The χ² probability of the likelihood-ratio tests between a stated level above the samples' and the samples'
+#: (one degree of freedom per key changed): riekf's on its detections (``observers.riekf.chosen_level``) and the
+#: odometry's own drift (:func:`drift_evidence`).
+LEVEL_CHOICE_P = 0.99
+#: Horizons (s) over which an odometry's twist is integrated against its own poses (:func:`drift_evidence`): the
+#: longest of them the stream holds ``DRIFT_WINDOWS`` disjoint windows of is tested (a choice, not fitted: the
+#: horizons a filter dead-reckons between detections run from about one second to the blind stretches of tens of
+#: seconds; eight windows give 24 squared differences; past 16 s a VIO's own pose drift enters the difference)
+DRIFT_HORIZONS_S = (1.0, 2.0, 4.0, 8.0, 16.0)
+DRIFT_WINDOWS = 8
 
 
 @dataclass(frozen=True)
@@ -165,6 +176,15 @@ class NoiseSettings:
     #: runs its first stretch at both and keeps the one its innovations explain better (``observers.riekf``,
     #: "Stated levels above the samples")
     above_samples: dict[str, np.ndarray] = field(default_factory=dict)
+    #: key -> :func:`drift_evidence` of the stream's twist against its own poses, where ``above_samples`` holds
+    #: the key and the messages carry poses: ``stated`` True keeps the stated level without riekf's test
+    #: (:meth:`disputed`)
+    drift: dict[str, dict] = field(default_factory=dict)
+
+    def disputed(self) -> list[str]:
+        """The keys of ``above_samples`` whose stated level riekf tests against the samples' on its detections:
+        every one but those the odometry's own long-horizon drift supports at the stated level (``drift``)."""
+        return [k for k in self.above_samples if not self.drift.get(k, {}).get("stated")]
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -587,12 +607,15 @@ def resolve_noise(
     topics: dict[str, str] | None = None,
     estimated: LogNoise | None = None,
     stated: Mapping[str, StatedNoise] | None = None,
+    odometry: Mapping[str, tuple] | None = None,
 ) -> NoiseSettings:
     """The settings of a run, key by key: what ``config`` (the run's ``noise`` section) sets; for the velocity
     densities the message covariances where they are plausible (and, with an estimate, between
     :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it): ``stated`` (role -> what the read found,
     ``LogStreams.stated_covariance``), else read from ``log``'s ``topics``; what the log's samples show
-    (``estimated``, used when ``config.auto``); else the defaults."""
+    (``estimated``, used when ``config.auto``); else the defaults. A stated level above the samples' on a stream
+    whose messages carry poses (``odometry``: role -> (its poses, its velocity stream),
+    ``LogStreams.odometry_poses``) is tested against the stream's own drift (:func:`drift_evidence`)."""
     cfg = config or NoiseConfig()
     section = cfg.given()
     found = estimated.levels() if estimated is not None and cfg.auto else {}
@@ -609,6 +632,7 @@ def resolve_noise(
     uncertainty: dict[str, object] = {}
     unresolved = None  # a configured gyro level is the user's: nothing added to it
     above: dict[str, np.ndarray] = {}
+    drift: dict[str, dict] = {}
     if estimated is not None and cfg.auto and estimated.gyro_unresolved is not None and "gyro" not in section:
         found_u = estimated.gyro_unresolved
         unresolved = _vec(found_u.value)
@@ -624,6 +648,16 @@ def resolve_noise(
                 methods[key] = stated_judgement(key, covariance.density, found[key].value)
                 if np.any(np.asarray(covariance.density) > np.asarray(found[key].value)):
                     above[key] = _vec(found[key].value)
+                    if (pair := (odometry or {}).get(STATED[key])) is not None and (
+                        rec := drift_evidence(*pair, _vec(covariance.density), above[key])
+                    ) is not None:
+                        drift[key] = rec
+                        methods[key] += "; " + drift_judgement(rec)
+                        if rec["stated"]:
+                            notes.append(
+                                f"noise: {key} stated {format_level(_plain(covariance.density))}, "
+                                f"above the samples' {format_level(_plain(above[key]))}: " + drift_judgement(rec)
+                            )
         elif key in absent:
             values[key], sources[key] = 0.0, "estimated"
             methods[key] = f"not a term of the law chosen, {estimated.detection.law}"
@@ -647,6 +681,7 @@ def resolve_noise(
         floor=cfg.floor,
         gyro_unresolved=unresolved,
         above_samples=above,
+        drift=drift,
         detection_held_scale=(
             estimated.detection.held_scale
             if estimated is not None
@@ -673,6 +708,68 @@ def stated_above(density, estimate) -> float | None:
     ratio = np.asarray(density, dtype=float) / np.maximum(np.asarray(estimate, dtype=float), 1e-300)
     high = float(np.max(ratio))
     return high if high > 1.0 / STATED_LOW else None
+
+
+def drift_evidence(poses, velocity, stated, samples) -> dict | None:
+    """A stated velocity level above the samples' white-noise estimate tested on what an odometry message carries
+    besides its twist, its pose: over disjoint windows of the longest of :data:`DRIFT_HORIZONS_S` the stream holds
+    :data:`DRIFT_WINDOWS` of, the twist integrated minus the messages' own displacement
+    (:func:`.noise_estimation.twist_drift`), less a constant body-frame bias (the one riekf and batch estimate,
+    fitted at each level), is, for a white velocity noise of density ``q`` per body axis, a random walk
+    ``N(0, q² τ)`` per axis. The deviance ``Σ log(q² τ) + d² / (q² τ)`` at the stated level and at the samples'
+    is compared: ``stated`` is True where the samples' is higher by more than the χ² quantile ``LEVEL_CHOICE_P``
+    (one degree of freedom), the stated level then right over the horizons a filter dead-reckons (a VIO's coloured
+    twist, its pose corrected by vision). A pose that is the twist's own integral (a wheel odometry's) leaves
+    nothing to measure and favours the samples' level: riekf's test goes on as before. None when ``poses`` and
+    ``velocity`` are not on the same stamps or no horizon holds enough windows."""
+    if poses is None or velocity is None or not np.array_equal(poses.t_ns, velocity.t_ns) or len(poses) < 3:
+        return None
+    span = (int(poses.t_ns[-1]) - int(poses.t_ns[0])) * 1e-9
+    fits = [h for h in DRIFT_HORIZONS_S if span >= DRIFT_WINDOWS * h]
+    if not fits:
+        return None
+    horizon = fits[-1]
+    diffs, spans, gains = twist_drift(poses.t_ns, velocity.xyz, poses.position, poses.quat_xyzw, horizon)
+    if diffs.shape[0] < DRIFT_WINDOWS or not np.all(np.isfinite(diffs)):
+        return None
+
+    def deviance(q) -> tuple[float, np.ndarray]:
+        # the constant bias riekf and batch estimate (its prior wide) fitted at this level and taken out first
+        var = np.maximum(np.asarray(q, dtype=float) ** 2, 1e-300)[None, :] * spans[:, None]
+        weighted = gains / var[:, :, None]
+        bias = np.linalg.lstsq(
+            np.einsum("wai,waj->ij", gains, weighted), np.einsum("wai,wa->i", weighted, diffs), rcond=None
+        )[0]
+        left = diffs - np.einsum("wai,i->wa", gains, bias)
+        return float(np.sum(np.log(var) + left**2 / var)), left
+
+    (stated_dev, left), (samples_dev, _) = deviance(stated), deviance(samples)
+    threshold = chi2_quantile(LEVEL_CHOICE_P, 1)
+    density = np.sqrt(np.mean(left**2 / spans[:, None], axis=0))  # the stated level's bias taken out
+    return {
+        "topic": poses.topic,
+        "horizon_s": horizon,
+        "windows": int(diffs.shape[0]),
+        "density": density,
+        "deviance_stated": stated_dev,
+        "deviance_samples": samples_dev,
+        "threshold": threshold,
+        "stated": samples_dev - stated_dev > threshold,
+    }
+
+
+def drift_judgement(rec: dict) -> str:
+    """The words of :func:`drift_evidence`'s verdict, for the level's method and the run's notes."""
+    gain = rec["deviance_samples"] - rec["deviance_stated"]
+    what = (
+        "kept as stated without riekf's test on its detections" if rec["stated"] else "riekf tests it on its detections"
+    )
+    return (
+        f"the twist integrated over {rec['windows']} windows of {rec['horizon_s']:g} s drifts from {rec['topic']}'s "
+        f"own poses, a constant bias taken out, as a density {format_level(_plain(rec['density']))} (the deviance "
+        f"of that drift {gain:.3g} lower at the stated level than at the samples', χ² quantile at {LEVEL_CHOICE_P:.0%} "
+        f"{rec['threshold']:.3g}): {what}"
+    )
 
 
 def stated_judgement(key: str, density, estimate) -> str:

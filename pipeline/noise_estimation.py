@@ -27,7 +27,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from slamobs.pipeline.lie import integrate_body_twists, so3_exps
+from slamobs.pipeline.lie import integrate_body_twists, quats_to_rots, so3_exps
 
 #: 1.4826 · MAD is the standard deviation of Gaussian samples.
 MAD_TO_SIGMA = 1.4826
@@ -911,3 +911,43 @@ def pair_bias_estimate(
         "pairs": int(a.size),
         "seconds": float(vel_t[-1] - vel_t[0]),
     }
+
+
+def twist_drift(
+    t_ns: np.ndarray, linear: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray, horizon_s: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An odometry's twist against its own poses over consecutive windows of at least ``horizon_s``: per window the
+    linear velocity integrated (trapezoid, each sample turned by its message's orientation, as riekf and batch take
+    it linear between samples) minus the messages' own displacement, in the body frame of the window's first message
+    (W, 3); each window's length (W,) s; and what a constant body-frame velocity bias ``b`` adds to that difference,
+    ``A b`` (W, 3, 3: the orientations relative to the window's first integrated over it). Windows are disjoint
+    (their differences independent for a white velocity noise); one holding a step over a quarter of ``horizon_s``
+    (a gap in the stream) is left out."""
+    t = np.asarray(t_ns, dtype=np.int64).astype(np.float64) * 1e-9
+    n = t.shape[0]
+    if n < 3:
+        return np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3, 3))
+    q = np.asarray(quat_xyzw, dtype=np.float64)
+    rots = quats_to_rots(np.ascontiguousarray(q / np.linalg.norm(q, axis=1, keepdims=True)))
+    world = np.einsum("nij,nj->ni", rots, np.asarray(linear, dtype=np.float64))
+    step = np.diff(t)
+    moved = np.vstack([np.zeros((1, 3)), np.cumsum(0.5 * (world[1:] + world[:-1]) * step[:, None], axis=0)])
+    big = np.concatenate([[0], np.cumsum(step > 0.25 * horizon_s)])
+    diffs, spans, gains = [], [], []
+    i = 0
+    while True:
+        j = int(np.searchsorted(t, t[i] + horizon_s, side="left"))
+        if j >= n:
+            break
+        if big[j] == big[i]:
+            d = (moved[j] - moved[i]) - (position[j] - position[i])
+            diffs.append(rots[i].T @ d)
+            spans.append(t[j] - t[i])
+            turned = np.einsum("k,kab->ab", 0.5 * step[i:j], rots[i:j] + rots[i + 1 : j + 1])  # this window's only
+            gains.append(rots[i].T @ turned)
+        i = j
+    return (
+        np.asarray(diffs, dtype=float).reshape(-1, 3),
+        np.asarray(spans, dtype=float),
+        np.asarray(gains, dtype=float).reshape(-1, 3, 3),
+    )

@@ -416,6 +416,7 @@ def prepare_log(
         static_tf_dropped=streams.static_tf_dropped,
         static_tf_changed=streams.static_tf_changed,
         stated_covariance=streams.stated_covariance,
+        odometry_poses=streams.odometry_poses,
     )
     return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
 
@@ -440,7 +441,12 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
     if config.noise.auto and prepared.estimated_noise is None and prepared.aligned is not None:
         prepared.estimated_noise = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
     estimated = prepared.estimated_noise if config.noise.auto else None
-    settings = resolve_noise(config.noise, estimated=estimated, stated=prepared.streams.stated_covariance)
+    settings = resolve_noise(
+        config.noise,
+        estimated=estimated,
+        stated=prepared.streams.stated_covariance,
+        odometry=prepared.streams.odometry_poses,
+    )
     return of_derived(settings, prepared.streams.derived.get("angular_velocity"))
 
 

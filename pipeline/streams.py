@@ -167,3 +167,7 @@ class LogStreams:
     #: Role -> what the velocity topic's messages state of its noise, every message judged
     #: (``readers.covariance.StatedNoise``; roles whose message type states none are left out).
     stated_covariance: dict[str, object] = field(default_factory=dict)
+    #: Role -> (the odometry's poses, the velocity stream read) on the same stamps, where the velocity topic is an
+    #: odometry whose messages carry poses: a stated level is tested against the twist's drift from them
+    #: (``noise.drift_evidence``)
+    odometry_poses: dict[str, tuple] = field(default_factory=dict)

@@ -195,3 +195,33 @@ def test_every_alignment_a_report_can_state_has_its_words_in_the_summaries_and_f
     assert ATTITUDE in types
     for table in (ALIGNED, DESCRIPTIONS, ALIGN_LABELS):
         assert set(types) <= set(table)
+
+
+def test_a_truth_that_freezes_while_the_body_moves_is_named_a_frozen_truth_not_a_body_at_rest(tmp_path):
+    """seed=3965 (session 36): the flight's motion capture lost track for 10 s of 90 and repeated its last pose; the
+    report said "the truth stands still ... the error of the place it stood (the path's drift since, or an estimate
+    that moved while the body did not)", and batch's APE over "the moving poses" was 0.529 m, the frozen stretch's
+    first and last half second in it (0.036 m without). Now, where the estimate moves on at its speed elsewhere, the
+    note names a frozen truth and leaves those out (an estimate at rest where the truth is keeps the body-at-rest note:
+    test_evaluation's still-stretch test)."""
+    import json
+    from dataclasses import replace
+
+    from slamobs.pipeline.api import run_log
+    from slamobs.pipeline.simulate import simulate, write_log
+    from slamobs.pipeline.simulate.scenarios import handheld
+
+    sim = simulate(handheld(), duration=40.0, seed=3965, imu_rate=100.0, odom_rate=10.0, detection_rate=10.0)
+    t, moc = (sim.mocap.t_ns - sim.start_ns) / 1e9, sim.mocap
+    lost, last = (t >= 15.0) & (t < 23.0), np.flatnonzero(t < 15.0)[-1]  # its pose at 15 s repeated until 23 s
+    pos, quat = moc.position.copy(), moc.quat_xyzw.copy()
+    pos[lost], quat[lost] = pos[last], quat[last]
+    log = write_log(replace(sim, mocap=replace(moc, position=pos, quat_xyzw=quat)), tmp_path / "frozen.mcap")
+    run_log(log, tmp_path / "fa", observer="fast-adaptation", config={"evaluation": {"plots": False}}, force=True)
+    report = json.loads((tmp_path / "fa" / "report.json").read_text())
+    validate_report(report)
+    frozen = [n for n in report["notes"] if n.startswith("the truth stands still")]
+    assert len(frozen) == 1 and "a truth that froze" in frozen[0], report["notes"]
+    assert "the place it stood" not in frozen[0]
+    alone = float(frozen[0].split(" it is ")[1].split(" m")[0])
+    assert alone < 0.2 * report["ape"]["translation_m"]["rmse"], frozen[0]  # 0.09 m against 1.19

@@ -223,3 +223,23 @@ def test_the_biases_covariance_leaves_out_a_landmark_the_gate_left_with_no_detec
     ref = g.Normal(others, g.Guess(guess.rot, guess.pos, guess.landmarks[1:], guess.bias))
     ref.linearize((pt[0], pt[1], pt[2][1:], pt[3]))
     assert np.allclose(ne.bias_covariance(s), ref.bias_covariance(ref.factor(0.0)[0]), rtol=1e-9)
+
+
+def test_the_marginal_covariances_leave_out_a_landmark_the_gate_left_with_no_detection(case):
+    """The same for the poses' and landmarks' marginal covariances (seed=3973, a clock set back 5 s mid-log: a
+    landmark's detections all gated, the run failed on numpy's ``Singular matrix``): the poses' and the other
+    landmarks' are those of the problem without it, its own NaN (no detection constrains it)."""
+    from dataclasses import replace
+
+    problem, guess, pt = case
+    kept = np.flatnonzero(problem.det_idx != 0)
+    sol = g.Solution(*pt, bias_cov=np.zeros((N_SEG, 6, 6)))
+    keyframes = np.array([0, K // 2, K - 1])
+    pose, landmarks = g.covariances(g.with_detections(problem, kept), sol, keyframes)
+    others = g.with_detections(problem, kept)
+    others = replace(others, det_idx=others.det_idx - 1)  # the same problem without landmark 0
+    ref = g.Solution(pt[0], pt[1], pt[2][1:], pt[3], bias_cov=sol.bias_cov)
+    ref_pose, ref_landmarks = g.covariances(others, ref, keyframes)
+    assert np.isnan(landmarks[0]).all() and np.isfinite(pose).all()
+    assert np.allclose(pose, ref_pose, rtol=1e-8, atol=1e-14)
+    assert np.allclose(landmarks[1:], ref_landmarks, rtol=1e-8, atol=1e-14)

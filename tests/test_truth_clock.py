@@ -54,3 +54,29 @@ def test_a_record_without_uncertainty_reads_as_unknown(tmp_path):
     assert recorded_offset(record) == off
     old = recorded_offset({k: v for k, v in record.items() if k != "uncertainty_s"})
     assert old.uncertainty_s is None and old.reliable == off.reliable
+
+
+def test_a_nees_against_a_truth_on_a_clock_offset_says_the_offset_is_in_it(tmp_path):
+    """seed=3967 (session 36): the motion capture stamped 0.2 s late; the report found the offset (reliable, APE
+    0.073 m with it, 0.190 without) but did not apply it, and riekf's position NEES of 799 read "the position
+    covariance is overconfident ... do not take the written position σ at face value" (4.69 with the offset applied).
+    Now each NEES note says the truth's clock is in it; with the offset applied (``t_offset auto``) none does."""
+    import json
+
+    from slamobs.pipeline.api import run_log
+    from slamobs.pipeline.evaluation.run_dir import report_run
+
+    sim = simulate("figure8", seed=2, duration=30.0)
+    late = int(round(0.2 * 1e9))
+    log = write_log(replace(sim, mocap=replace(sim.mocap, t_ns=sim.mocap.t_ns + late)), tmp_path / "late.mcap")
+    out = tmp_path / "riekf"
+    run_log(log, out, observer="riekf", config={"evaluation": {"plots": False}}, force=True)
+    report = json.loads((out / "report.json").read_text())
+    off = report["time_offset"]
+    assert off["reliable"] and off["applied_s"] == 0.0 and off["ape_rmse_with_m"] < 0.8 * off["ape_rmse_without_m"]
+    nees = [n for n in report["notes"] if n.startswith("position NEES")]
+    assert nees and all("the truth's clock looks +0.2" in n for n in nees), report["notes"]
+    report_run(out, t_offset_s="auto", plots=False)
+    applied = json.loads((out / "report.json").read_text())
+    assert applied["time_offset"]["applied_s"] > 0.1
+    assert not any("the truth's clock looks" in n for n in applied["notes"]), applied["notes"]

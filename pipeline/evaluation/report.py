@@ -49,6 +49,7 @@ from slamobs.pipeline.evaluation.sections import (
     TimeOffsetSection,
     UncertaintySection,
     alignment_dict,
+    nees_against_offset_truth,
     nees_against_turned_truth,
 )
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
@@ -261,11 +262,12 @@ def _scene(landmarks: Table | None, landmark_truth, ev: TrajectoryEvaluation) ->
 
 def _report_notes(invalid: int, sections: dict) -> list[str]:
     """The report's notes: ``invalid`` truth poses dropped, then the sections' own (APE, map, time offset, APE by
-    alignment, RPE) and the NEES against a turned truth."""
+    alignment, RPE) and the NEES against a turned truth or one on a clock offset."""
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
     nees = nees_against_turned_truth(sections["ape"].result["truth_frame_turn"], sections["uncertainty"].notes)
+    nees = nees_against_offset_truth(sections["time_offset"].result, nees)
     notes += sections["ape"].notes + sections["landmarks"].notes + sections["time_offset"].notes
     return notes + sections["ape_by_alignment"].notes + sections["rpe"].notes + nees
 

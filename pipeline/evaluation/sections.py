@@ -198,15 +198,32 @@ STILL_SPAN_S = 0.5
 STILL_MOVE_M = 0.01
 STILL_SHARE = 0.1
 STILL_GAIN = 1.25
+#: Where the estimate's median speed over the truth's still pairs is this share of its median over the moving pairs
+#: or more, the body did not stand still: the truth froze (a motion capture that lost track and repeats its last
+#: pose). A margin, not tuned: seed=3965 (mocap frozen 10 s of 90) 0.9-1.1, seed=3657 and seed=3962 (30 s and 120 s
+#: at rest) 0.01-0.1.
+FROZEN_SPEED_SHARE = 0.5
+
+
+def _span_ends(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The indices of the sorted stamps ``t`` (ns) nearest ``STILL_SPAN_S`` before and after each."""
+    w = int(STILL_SPAN_S * NS_PER_S)
+    return np.clip(np.searchsorted(t, t - w), 0, t.size - 1), np.clip(np.searchsorted(t, t + w), 0, t.size - 1)
+
+
+def window_speeds(t_ns: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """The speed (m/s) of the time-ordered positions ``pos`` at ``t_ns`` over ``STILL_SPAN_S`` either side of each
+    (the nearest poses): the displacement between the two over their time apart."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    before, after = _span_ends(t)
+    dt = np.maximum((t[after] - t[before]) / NS_PER_S, 1e-9)
+    return metrics.row_norms(pos[after], pos[before]) / dt
 
 
 def still_pairs(t_ns: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """Which of the time-ordered poses ``pos`` at ``t_ns`` stand still: the position ``STILL_SPAN_S`` before and
     after each (the nearest pose) within ``STILL_MOVE_M`` of its own."""
-    t = np.asarray(t_ns, dtype=np.int64)
-    w = int(STILL_SPAN_S * NS_PER_S)
-    before = np.clip(np.searchsorted(t, t - w), 0, t.size - 1)
-    after = np.clip(np.searchsorted(t, t + w), 0, t.size - 1)
+    before, after = _span_ends(np.asarray(t_ns, dtype=np.int64))
     near = lambda j: metrics.row_norms(pos[j], pos) < STILL_MOVE_M  # noqa: E731
     return near(before) & near(after)
 
@@ -236,12 +253,44 @@ def still_stretch_note(ev: TrajectoryEvaluation) -> list[str]:
     alone = float(np.sqrt(np.mean(err**2)))
     if full < STILL_GAIN * alone:
         return []
+    speed = np.empty(len(p))
+    speed[order] = window_speeds(p.t_ref_ns[order], p.est_pos[order])
+    moving_speed, still_speed = float(np.median(speed[moving])), float(np.median(speed[still]))
+    if moving_speed > 0.0 and still_speed >= FROZEN_SPEED_SHARE * moving_speed:
+        return frozen_truth_note(ev, order, still, still_speed / moving_speed)
     at_still = float(np.mean(ev.translation.errors[still]))
     return [
         f"the truth stands still for {n_still / len(p):.0%} of the paired poses, and the APE weighs a place by the "
         f"time spent there: the estimate is {at_still:.3g} m off where it stood, and over the moving poses alone "
         f"(the {al.kind} alignment fitted on them) the APE is {alone:.3g} m against {full:.3g} m: the error of the "
         "place it stood (the path's drift since, or an estimate that moved while the body did not), not of the path"
+    ]
+
+
+def frozen_truth_note(ev: TrajectoryEvaluation, order: np.ndarray, still: np.ndarray, share: float) -> list[str]:
+    """The note for a truth that stands still where the estimate moves on at ``share`` of its speed elsewhere (the
+    estimate's speed is the body's measured velocity integrated, about 0 at rest whatever its error): a motion
+    capture that lost track and repeats its last pose (seed=3965). The moving pairs leave out those within
+    ``STILL_SPAN_S`` of a still one too: a frozen stretch's first and last half second are not still by
+    :func:`still_pairs` but frozen all the same."""
+    p, al, full = ev.paired, ev.alignment, ev.translation.stats["rmse"]
+    t = p.t_ref_ns[order]
+    before, after = _span_ends(t)
+    near = np.cumsum(np.r_[0, still[order].astype(np.int64)])
+    frozen = np.empty(len(p), dtype=bool)
+    frozen[order] = near[after + 1] - near[before] > 0  # a still pair within the span either side
+    try:
+        fit = fit_alignment(al.kind, p.ref_pos[~frozen], p.est_pos[~frozen])
+    except ValueError:  # collinear moving pairs: no fit
+        return []
+    alone = float(np.sqrt(np.mean(metrics.row_norms(fit.positions(p.est_pos[~frozen]), p.ref_pos[~frozen]) ** 2)))
+    return [
+        f"the truth stands still for {still.mean():.0%} of the paired poses while the estimate moves on there at "
+        f"{share:.2g}x its speed where the truth moves: a truth that froze (a motion capture that lost track and "
+        "repeats its last pose?) rather than a body at rest; the APE counts those poses "
+        f"({float(np.mean(ev.translation.errors[still])):.3g} m off the frozen one, mean): over the "
+        f"{int((~frozen).sum())} others alone (the {al.kind} alignment fitted on them) it is {alone:.3g} m against "
+        f"{full:.3g} m"
     ]
 
 
@@ -1489,6 +1538,31 @@ def nees_against_turned_truth(turn: dict[str, Any] | None, nees_notes: list[str]
         f"; but {TRUTH_FRAME_TURNED} (the note on the rotation APE): this NEES holds the estimate against a truth in "
         "another body frame, so that turn is in it: judge the covariance once the frames agree (frames.body, or "
         "frames.truth_rotation for the report)"
+    )
+    return [f"{n}{why}" if _NEES_NOTE.match(n) else n for n in nees_notes]
+
+
+#: A reliable clock offset not applied whose APE with it applied is this share of the APE without or less: the truth's
+#: clock is a visible part of the error the NEES holds against the covariance. A margin, not tuned: seed=3967 (truth
+#: stamps 0.2 s late) riekf 0.073 m against 0.190 (0.39), NEES 799 "overconfident" as it was, 4.69 with it applied.
+OFFSET_NEES_SHARE = 0.8
+
+
+def nees_against_offset_truth(offset: dict[str, Any], nees_notes: list[str]) -> list[str]:
+    """The uncertainty section's notes once the report found a reliable clock offset between the truth and the
+    estimate that it did not apply (``offset``: report.json's ``time_offset``) and that takes the APE to
+    ``OFFSET_NEES_SHARE`` of itself or less: each NEES verdict then says that the truth's clock is in it (seed=3967:
+    "overconfident" at 799, 4.69 with the offset applied). The notes as they are otherwise."""
+    with_m, without_m = offset.get("ape_rmse_with_m"), offset.get("ape_rmse_without_m")
+    if not offset.get("reliable") or offset.get("applied_s") or with_m is None or not without_m:
+        return nees_notes
+    if with_m > OFFSET_NEES_SHARE * without_m:
+        return nees_notes
+    why = (
+        f"; but the truth's clock looks {offset['estimated_s']:+.3g} s off the estimate's (the clock offset, "
+        f"reliable, not applied: the APE {with_m:.3g} m with it against {without_m:.3g} m): this NEES holds the "
+        "estimate against a truth that far off in time, so that is in it: judge the covariance with the offset "
+        "applied (`slamobs report RUN_DIR --t-offset auto`)"
     )
     return [f"{n}{why}" if _NEES_NOTE.match(n) else n for n in nees_notes]
 

@@ -142,8 +142,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   pass, after the walk's and the bias priors' restarts below have run at its levels (a pass that lost the track says
   nothing of the levels: TagSLAM test_22's first, 48 detections in a row gated at either velocity level); the chosen
   one's are run again. run.json ``observer.filter.stated_levels`` and a note say which level was used and why
-  (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). Nowhere else does
-  anything change.
+  (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). A key whose
+  odometry's own poses support its stated level (``noise.drift_evidence``: the twist's long-horizon drift from them,
+  a constant bias taken out) is not tried (``NoiseSettings.disputed``). Nowhere else does anything change.
 * Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
   by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
@@ -220,7 +221,7 @@ from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import floor_tilt_row, project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.noise import chi2_quantile, format_level, nees_bounds, stated_above
+from slamobs.pipeline.noise import LEVEL_CHOICE_P, chi2_quantile, format_level, nees_bounds, stated_above
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -2579,20 +2580,15 @@ def innovation_note(rec: dict) -> list[str]:
     ]
 
 
-#: The χ² probability of the likelihood-ratio test a samples' level must pass to replace a stated one (module
-#: docstring, "Stated levels above the samples"; :func:`chosen_level`): the deviance over the stated pass's tested
-#: detections lower by more than its quantile with one degree of freedom per key changed.
-LEVEL_CHOICE_P = 0.99
-
-
 def level_candidates(white) -> list[dict]:
     """The levels riekf tries where a stated covariance is more than ``1 / noise.STATED_LOW`` times above the
     samples' white-noise estimate (``white.above_samples``): the stated (as resolved) first, then every stated key
     above its samples' level (the other key too when it is above by less: with one key tight and the other loose
     riekf did worse than with both as stated, seed=3458 and seed=3626) at the samples' level, then (two keys) each
-    alone; one candidate (the levels as resolved) elsewhere. Each:
+    alone; one candidate (the levels as resolved) elsewhere. A key whose odometry's own drift supports its stated
+    level (``white.disputed()``, ``noise.drift_evidence``) is not tried. Each:
     ``which`` (key -> "stated" or "samples") and ``noise`` (the white levels, the swapped keys' source saying so)."""
-    keys = list(white.above_samples)
+    keys = white.disputed()
     if not any(stated_above(getattr(white, k), white.above_samples[k]) is not None for k in keys):
         return [{"which": {}, "noise": white}]
     subsets = [(), tuple(keys)] + ([(k,) for k in keys] if len(keys) > 1 else [])

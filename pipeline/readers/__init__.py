@@ -293,7 +293,7 @@ def _velocity_checks(role, topic, built, selection, table, rows, streams, note, 
         twist = vec3_stream(rows[topic], "angular_velocity")[0]
         streams.twist_angular = twist if len(twist) > 1 and twist.xyz.any() else None
     if table[topic][0].msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
-        stream, cleaning = _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
+        stream, cleaning = _odometry_twist(rows[topic], role, stream, cleaning, streams)
         if (
             role == "linear_velocity"
             and gyro is not None
@@ -523,11 +523,12 @@ def _poses_at(poses: PoseStream, t_ns: np.ndarray) -> PoseStream | None:
 
 
 def _odometry_twist(
-    rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleaning, derived: dict[str, str]
+    rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleaning, streams: LogStreams
 ) -> tuple[Vec3Stream, Cleaning]:
     """An odometry twist checked against the odometry's poses: a zero angular velocity is differentiated from the
     orientations, a linear velocity given in the parent frame is rotated into the child frame (both recorded in
-    ``derived``)."""
+    ``streams.derived``); the linear velocity read is kept with its poses (``streams.odometry_poses``)."""
+    derived = streams.derived
     from .odometry import SMOOTH_S, angular_from_poses, rotate_into_child, twist_in_parent  # lazy: ~0.1 s of kernels
 
     poses, _ = pose_stream(rows)
@@ -552,7 +553,8 @@ def _odometry_twist(
             cleaning.extra.append(
                 f"twist.linear is in the parent frame '{poses.frame_id}': rotated into the child frame"
             )
-            return rotate_into_child(poses, stream), cleaning
+            stream = rotate_into_child(poses, stream)
+        streams.odometry_poses[role] = (poses, stream)
     return stream, cleaning
 
 

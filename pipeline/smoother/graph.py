@@ -220,13 +220,7 @@ class Normal:
     def bias_covariance(self, s: np.ndarray) -> np.ndarray:
         """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement; a landmark
         left with no detection (the χ² gate dropped them all) has no rows there and is left out."""
-        b0 = 3 * self.n_lm
-        try:
-            cov = np.linalg.inv(s)[b0:, b0:]
-        except np.linalg.LinAlgError:
-            keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
-            nb = s.shape[0] - b0
-            cov = np.linalg.inv(s[np.ix_(keep, keep)])[-nb:, -nb:]
+        cov = border_inverse(s, self.n_lm)[3 * self.n_lm :, 3 * self.n_lm :]
         return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
 
 
@@ -380,14 +374,32 @@ def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple
     n = keyframes.shape[0]
     if f is None:
         return np.full((n, 6, 6), np.nan), np.full((ne.n_lm, 3, 3), np.nan)
-    s_inv = np.linalg.inv(f[0])
+    s_inv = border_inverse(f[0], ne.n_lm)
+    unseen = np.isnan(np.diagonal(s_inv)[: 3 * ne.n_lm : 3])
+    s_inv[np.isnan(s_inv)] = 0.0  # no detection couples the poses to them (their ee blocks are 0)
     body = np.zeros((n, 6, 6))
     pose_marginals(ne._geo(), ne.dd, ne.ee, s_inv, np.asarray(keyframes, np.int64), body)
     turn = np.zeros((n, 6, 6))
     turn[:, :3, :3] = turn[:, 3:, 3:] = sol.rot[keyframes]
     pose = np.einsum("nij,njk,nlk->nil", turn, body, turn)
     landmarks = np.array([s_inv[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(ne.n_lm)]).reshape(-1, 3, 3)
+    landmarks[unseen] = np.nan
     return pose, landmarks
+
+
+def border_inverse(s: np.ndarray, n_lm: int) -> np.ndarray:
+    """The inverse of the border's Schur complement ``s`` (the ``n_lm`` landmarks' 3 rows each, then the biases');
+    a landmark left with no detection (the χ² gate dropped them all) has rows of 0 there: its block is NaN and
+    the rest the inverse of ``s`` without it (seed=3973, a clock set back 5 s mid-log: the run's covariances failed
+    on ``Singular matrix`` where the bias's had this)."""
+    try:
+        return np.linalg.inv(s)
+    except np.linalg.LinAlgError:
+        b0 = 3 * n_lm
+        keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
+        out = np.full_like(s, np.nan)
+        out[np.ix_(keep, keep)] = np.linalg.inv(s[np.ix_(keep, keep)])
+        return out
 
 
 def evidence_terms(problem: Problem, sol: Solution) -> tuple[float, float] | None:
