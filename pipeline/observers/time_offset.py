@@ -460,24 +460,23 @@ def _indistinct(shifts: np.ndarray, within: np.ndarray, best: int) -> list[float
 
 
 def hold_lag(stream) -> float:
-    """The search's own lag (s): half the median interval between the velocity samples, a whole one where they are
-    read as interval means (:func:`interval_means`). The search holds each sample from its stamp until the next
-    where riekf and batch take the twist linear between samples, which lags a changing motion by half an interval:
-    on a clean log with no offset it finds that lag as one (a generated figure 8 at 10 / 20 / 4.26 Hz: +0.051 /
-    +0.023-0.026 / +0.119 s), so a positive shift no larger is not told from it (issue 23). A shift of the other sign
-    is the lag's opposite: a true offset read short by it (10 Hz, detections 0.1-0.3 s late: -0.049 / -0.148 /
-    -0.247 s). A sample that is the mean over the interval before its stamp is the motion half an interval earlier,
-    so held it lags by a whole one (generated 4 / 10 Hz rigs of interval means, no offset: +0.249 / +0.099 s).
+    """The search's own lag (s): half the median interval between the velocity samples. The search holds each
+    sample from its stamp until the next where riekf and batch take the twist linear between samples, which
+    lags a changing motion by half an interval: on a clean log with no offset it finds that lag as one (a generated
+    figure 8 at 10 / 20 / 4.26 Hz: +0.051 / +0.023-0.026 / +0.119 s), so a positive shift no larger is not told
+    from it (issue 23). A shift of the other sign is the lag's opposite: a true offset read short by it (10 Hz,
+    detections 0.1-0.3 s late: -0.049 / -0.148 / -0.247 s). Samples read as interval means were restamped to their
+    intervals' midpoints by the reader (:func:`interval_means`), so the same half interval holds for them.
     Public: tests/test_robust_reference.py checks it."""
     t = stream.vel_t_ns
-    half = 0.5e-9 * float(np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
-    return 2.0 * half if interval_means(stream) else half
+    return 0.5e-9 * float(np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
 
 
 def interval_means(stream) -> bool:
-    """Whether the velocity samples are read as means over the interval before each stamp: an odometry twist that
+    """Whether the velocity samples were read as means over the interval before each stamp: an odometry twist that
     is both velocities, against its own poses (``AlignedStream.twist_sampling``, read by
-    :func:`.readers.odometry.twist_sampling`). Otherwise each is taken as the motion at its stamp."""
+    :func:`.readers.odometry.twist_sampling`), and restamped to the intervals' midpoints where they were read
+    (:func:`.readers.odometry.midpoint_restamped`). Otherwise each is taken as the motion at its stamp as stamped."""
     read = getattr(stream, "twist_sampling", None)
     return bool(read) and read.get("model") == "mean"
 
@@ -494,11 +493,14 @@ _SAMPLING_WHY = {
 
 
 def sampling_record(stream) -> dict:
-    """The record's ``sampling``: the model the search's lag assumes (``mean`` or ``instant``) and why, with the
-    odometry's reading where there is one (:func:`interval_means`)."""
+    """The record's ``sampling``: what each velocity sample was read as (``mean`` or ``instant``) and why, with the
+    odometry's reading where there is one (:func:`interval_means`); means were restamped to their intervals'
+    midpoints, so the search's lag is half an interval either way (:func:`hold_lag`)."""
     read = getattr(stream, "twist_sampling", None)
     why = _SAMPLING_WHY[read["model"] if read else ""]
-    if not interval_means(stream):
+    if interval_means(stream):
+        why += ": " + read.get("restamped", "") + ", each then the motion at its stamp"
+    else:
         why += ": each velocity sample taken as the motion at its stamp"
     return {"model": "mean" if interval_means(stream) else "instant", "why": why, **({"read": read} if read else {})}
 
@@ -1170,8 +1172,8 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
         why = f"below {MIN_APPLY_S} s"
     elif 0.0 < shift <= lag + MIN_SIGMAS * sigma:
         why = (
-            f"within the search's own lag ({lag:.4f} s, {_lag_words(c.stream)}) and {MIN_SIGMAS:g} standard errors of "
-            "zero"
+            f"within the search's own lag ({lag:.4f} s, half the velocity samples' median interval: it holds each "
+            f"sample until the next, the estimators interpolate) and {MIN_SIGMAS:g} standard errors of zero"
         )
         lagged = True
     elif gain < MIN_GAIN:
@@ -1182,16 +1184,6 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
     else:  # only an offset about to be applied pays for the check of the halves
         why = _halves_disagree(c, stream)
     return shift, sigma, gain, span, why, shift if why is None or lagged else 0.0
-
-
-def _lag_words(stream) -> str:
-    """What the search's own lag is (:func:`hold_lag`), for the reason an offset inside it is not applied."""
-    if interval_means(stream):
-        return (
-            "the velocity samples' median interval: they are means over the interval before each stamp, which the "
-            "search holds until the next"
-        )
-    return "half the velocity samples' median interval: it holds each sample until the next, the estimators interpolate"
 
 
 def _gain_over_lag(c: Consistency, shift: float, lag: float) -> float:

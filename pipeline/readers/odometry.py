@@ -174,3 +174,20 @@ def twist_sampling(poses: PoseStream, angular: Vec3Stream, linear: Vec3Stream) -
         "samples": int(np.count_nonzero(ok)),
         **{k: {**r, "sigmas": round(float(min(r["sigmas"], 1e6)), 2)} for k, r in read.items()},  # no inf in run.json
     }
+
+
+#: What the record says of a twist read as interval means (:func:`midpoint_restamped`).
+RESTAMPED = "restamped to interval midpoints"
+
+
+def midpoint_restamped(stream: Vec3Stream) -> Vec3Stream:
+    """A twist of interval means (:func:`twist_sampling` reads ``mean``) restamped to the midpoint of the interval
+    each sample covers, ``t_k − (t_k − t_{k−1})/2``, where it is the motion to second order: every consumer then takes
+    it as the motion at its stamp. The first sample, and one after a gap (an interval over ``SAMPLING_GAP`` median
+    intervals: a dropped message, not a longer mean), go back by half the median interval. Both clocks move alike."""
+    if len(stream) < 2:
+        return stream
+    dt = np.diff(stream.t_ns)
+    med = int(np.median(dt))
+    back = np.concatenate([[med], np.where(dt > SAMPLING_GAP * med, med, dt)]) // 2
+    return Vec3Stream(stream.topic, stream.frame_id, stream.t_ns - back, stream.rec_ns - back, stream.xyz)

@@ -483,7 +483,7 @@ def _piece(
 
 #: What a low-rate sample may be: the motion at its stamp (what a gyro or wheel encoder read at that instant
 #: gives), or the mean over the sample interval before it (a downsampled or integrated stream: a VIO's twist may be
-#: one). The detection offset search's zero moves with it (docs/benchmarks.md, h-meanoffset).
+#: one). An odometry read as such is restamped to its intervals' midpoints (docs/benchmarks.md, h-meanoffset2).
 SAMPLINGS = ("instant", "mean")
 #: Points of the midpoint rule an interval mean is taken over.
 MEAN_POINTS = 8
