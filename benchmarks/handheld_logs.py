@@ -67,6 +67,9 @@ class Case:
     law: tuple[float, float] = (0.03, 0.006)  # sigma0 (m), k (m per m of range)
     detection_hz: float = 15.0
     offset_s: float = 0.0  # added to the detection stamps
+    sampling: str = (
+        "instant"  # each IMU and odometry sample the motion at its stamp, or "mean" over the interval before
+    )
     stated: float = 0.0  # the messages' covariance at this many times the truth (0: unknown)
     gaps: tuple[tuple[float, float], ...] = ()
     tilt_deg: float = 12.0
@@ -644,7 +647,9 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
     kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
     kw |= {"mocap_rate": case.truth_hz} if case.truth_hz != 100.0 else {}
     sc = scenario(case)
-    sim = simulate(sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, **kw)
+    sim = simulate(
+        sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, sampling=case.sampling, **kw
+    )
     sim = misdrawn8(misdrawn7(misdrawn(perturb(sim, case), case, sc), case), case)
     stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)

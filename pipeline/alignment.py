@@ -429,6 +429,9 @@ class AlignedStream:
     #: (:func:`_gyro_lag_taken_off`; 0.0 when none): the detection pairs' offset search reads it, since detections
     #: that need the same move say the odometry, not the IMU, is the stream stamped off (``time_offset``).
     gyro_moved_s: float = 0.0
+    #: What each sample of the velocities is, where the log tells (``LogStreams.twist_sampling``), else None: interval
+    #: means were restamped to their midpoints by the reader; ``time_offset.sampling_record`` says so.
+    twist_sampling: dict | None = None
     #: The linear velocity's gaps when it has a topic of its own (:func:`_measured_gaps`; none when it shares the
     #: time base's topic, whose gaps are the time base's own intervals): ``(G, 2)`` int64 ns, its samples before
     #: and after each gap, across which the time base's samples got it interpolated; ``velocity_period_ns`` its
@@ -1257,6 +1260,7 @@ def align(
         warn_only=warn,
         gyro_turn=gyro_turn,
         gyro_moved_s=gyro_moved_s,
+        twist_sampling=streams.twist_sampling,
         velocity_gaps=lv_gaps[0],
         velocity_period_ns=lv_gaps[1],
         bridged_gaps=lv_gaps[2],

@@ -158,6 +158,10 @@ class LogStreams:
     camera_info: list = field(default_factory=list)
     #: Roles whose values were derived rather than read, and how (e.g. angular velocity from orientations).
     derived: dict[str, str] = field(default_factory=dict)
+    #: What each sample of an odometry's twist is, read from the topic's own poses when both velocities are that
+    #: twist (:func:`.readers.odometry.twist_sampling`), else None; read as interval means, both velocities were
+    #: restamped to their intervals' midpoints (:func:`.readers.odometry.midpoint_restamped`, ``restamped``).
+    twist_sampling: dict | None = None
     #: What the log says about reading it (a simulated log's ``tag_size`` and ``tag_family``): used where the
     #: config leaves them unset.
     recorded: dict[str, object] = field(default_factory=dict)

@@ -495,3 +495,35 @@ def test_cli_rig_options(tmp_path):
     assert res.exit_code == 0, res.output
     res = CliRunner().invoke(simulate_cmd, ["figure8", "-o", str(tmp_path / "x.mcap"), "--landmarks", "99"])
     assert res.exit_code == 2 and "choose 3 to 30" in res.output
+
+
+def test_a_low_rate_stream_of_interval_means():
+    """``sampling="mean"``: each IMU and odometry sample is the mean of the motion over the interval before its stamp
+    (a downsampled or integrating stream), the odometry's poses each twist held over that interval; the default is
+    the motion at the stamp. Generated in pieces it is the same log."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate.sensors import simulation
+
+    sc, rate = get_scenario("figure8"), 4.0
+    inst = simulate("figure8", duration=6.0, noise=False, imu_rate=rate, odom_rate=rate)
+    mean = simulate("figure8", duration=6.0, noise=False, imu_rate=rate, odom_rate=rate, sampling="mean")
+    for stream, read, field in (("odom", "linear", "v"), ("imu", "gyro", "omega")):
+        t = (getattr(mean, stream).t_ns - mean.start_ns) * 1e-9
+        bias = sc.velocity_bias if stream == "odom" else sc.gyro_bias
+        at = getattr(sc.sample(t), field)
+        fine = [getattr(sc.sample(t - (j + 0.5) / (200 * rate)), field) for j in range(200)]  # finer than the rule
+        avg = np.mean(fine, axis=0)
+        assert np.allclose(getattr(getattr(inst, stream), read) - bias, at, atol=1e-12)
+        got = getattr(getattr(mean, stream), read) - bias
+        assert np.abs(got - avg).max() < 0.02 * np.abs(avg - at).max()  # the mean, not the instant
+    t = (mean.odom.t_ns - mean.start_ns) * 1e-9
+    o = mean.odom
+    rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), o.angular[1:], o.linear[1:], np.diff(t))
+    assert np.allclose(ps, o.position, atol=1e-12) and np.allclose(quats_to_rots(o.quat_xyzw), rs, atol=1e-12)
+    one = simulation("figure8", duration=5.0, seed=4, noise=False, odom_rate=rate, sampling="mean")
+    whole, single = replace(one, piece_s=2.0).whole(), one.whole()
+    assert np.allclose(whole.odom.position, single.odom.position, atol=1e-12)
+    assert np.allclose(whole.imu.accel, single.imu.accel, atol=1e-12)
+    with pytest.raises(ValueError, match="sampling must be one of instant, mean"):
+        simulation("figure8", sampling="average")

@@ -465,9 +465,44 @@ def hold_lag(stream) -> float:
     lags a changing motion by half an interval: on a clean log with no offset it finds that lag as one (a generated
     figure 8 at 10 / 20 / 4.26 Hz: +0.051 / +0.023-0.026 / +0.119 s), so a positive shift no larger is not told
     from it (issue 23). A shift of the other sign is the lag's opposite: a true offset read short by it (10 Hz,
-    detections 0.1-0.3 s late: -0.049 / -0.148 / -0.247 s). Public: tests/test_robust_reference.py checks it."""
+    detections 0.1-0.3 s late: -0.049 / -0.148 / -0.247 s). Samples read as interval means were restamped to their
+    intervals' midpoints by the reader (:func:`interval_means`), so the same half interval holds for them.
+    Public: tests/test_robust_reference.py checks it."""
     t = stream.vel_t_ns
     return 0.5e-9 * float(np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
+
+
+def interval_means(stream) -> bool:
+    """Whether the velocity samples were read as means over the interval before each stamp: an odometry twist that
+    is both velocities, against its own poses (``AlignedStream.twist_sampling``, read by
+    :func:`.readers.odometry.twist_sampling`), and restamped to the intervals' midpoints where they were read
+    (:func:`.readers.odometry.midpoint_restamped`). Otherwise each is taken as the motion at its stamp as stamped."""
+    read = getattr(stream, "twist_sampling", None)
+    return bool(read) and read.get("model") == "mean"
+
+
+#: Why the search's lag assumes the sampling model it does (:func:`sampling_record`), by the odometry's reading
+#: (``readers.odometry.SAMPLING_CANDIDATES``; None: not told, "": no reading).
+_SAMPLING_WHY = {
+    "mean": "the twist fits its own poses' increment over the interval before each stamp",
+    "instant": "the twist fits its own poses' central difference at each stamp",
+    "held": "the poses were dead-reckoned from the twist, which says nothing of its sampling",
+    None: "its own poses do not tell the twist's sampling",
+    "": "nothing in the log tells",
+}
+
+
+def sampling_record(stream) -> dict:
+    """The record's ``sampling``: what each velocity sample was read as (``mean`` or ``instant``) and why, with the
+    odometry's reading where there is one (:func:`interval_means`); means were restamped to their intervals'
+    midpoints, so the search's lag is half an interval either way (:func:`hold_lag`)."""
+    read = getattr(stream, "twist_sampling", None)
+    why = _SAMPLING_WHY[read["model"] if read else ""]
+    if interval_means(stream):
+        why += ": " + read.get("restamped", "") + ", each then the motion at its stamp"
+    else:
+        why += ": each velocity sample taken as the motion at its stamp"
+    return {"model": "mean" if interval_means(stream) else "instant", "why": why, **({"read": read} if read else {})}
 
 
 #: How ``why_not_applied`` begins where only the halves' check held an offset back (:func:`unapplied_note`).
@@ -1174,6 +1209,7 @@ def _record(stream, n: int) -> dict:
         "topics": dict(stream.topics),
         "gyro_turn": getattr(stream, "gyro_turn", None),
         "gyro_moved_s": float(getattr(stream, "gyro_moved_s", 0.0)),
+        "sampling": sampling_record(stream),
     }
 
 

@@ -293,10 +293,39 @@ def _velocity_checks(role, topic, built, selection, table, rows, streams, note, 
         twist = vec3_stream(rows[topic], "angular_velocity")[0]
         streams.twist_angular = twist if len(twist) > 1 and twist.xyz.any() else None
     if table[topic][0].msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
-        return _odometry_twist(rows[topic], role, stream, cleaning, streams)
+        stream, cleaning = _odometry_twist(rows[topic], role, stream, cleaning, streams)
+        if (
+            role == "linear_velocity"
+            and gyro is not None
+            and gyro.topic == topic
+            and "angular_velocity" not in streams.derived
+        ):
+            streams.twist_sampling = _sampling_read(rows[topic], gyro, stream)
+            if streams.twist_sampling and streams.twist_sampling["model"] == "mean":
+                streams.angular_velocity, stream = _midpoints(streams.twist_sampling, gyro, stream)
+        return stream, cleaning
     if role == "angular_velocity" and "angular_velocity" not in overrides:
         return _filled_gyro(topic, stream, cleaning, selection, table, rows, streams, note)
     return stream, cleaning
+
+
+def _sampling_read(rows: Rows, angular: Vec3Stream, linear: Vec3Stream) -> dict | None:
+    """What each sample of an odometry twist that is both velocities is (:func:`.odometry.twist_sampling`), read
+    against the topic's own poses; None where they are not on the twist's stamps."""
+    from .odometry import twist_sampling  # lazy, as :func:`_odometry_twist`
+
+    poses = _poses_at(pose_stream(rows)[0], linear.t_ns)
+    return twist_sampling(poses, angular, linear) if poses is not None else None
+
+
+def _midpoints(read: dict, angular: Vec3Stream, linear: Vec3Stream) -> tuple[Vec3Stream, Vec3Stream]:
+    """An odometry twist read as interval means, both velocities restamped to the midpoints of their intervals
+    (:func:`.odometry.midpoint_restamped`), which ``read`` (``LogStreams.twist_sampling``) records: every estimator
+    and the detection offset search then take each sample as the motion at its stamp."""
+    from .odometry import RESTAMPED, midpoint_restamped  # lazy, as :func:`_odometry_twist`
+
+    read["restamped"] = RESTAMPED
+    return midpoint_restamped(angular), midpoint_restamped(linear)
 
 
 def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, table, rows, streams, note):

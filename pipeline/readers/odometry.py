@@ -17,7 +17,7 @@ import numpy as np
 from slamobs.pipeline.blocks import row_norms3
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.lie import mat3_mul, quats_to_rots, so3_log
+from slamobs.pipeline.lie import mat3_mul, quats_to_rots, so3_exps, so3_log
 from slamobs.pipeline.streams import PoseStream, Vec3Stream
 
 #: Centred moving-average window of the differentiated angular velocity, seconds.
@@ -98,3 +98,96 @@ def rotate_into_child(poses: PoseStream, linear: Vec3Stream) -> Vec3Stream:
     return Vec3Stream(
         linear.topic, linear.frame_id, linear.t_ns, linear.rec_ns, np.einsum("nji,nj->ni", rots, linear.xyz)
     )
+
+
+#: What a twist sample can be against its own topic's poses (:func:`twist_sampling`): the mean over the interval
+#: before its stamp (a downsampled or integrating odometry), the motion at its stamp (central difference), or the
+#: increment over the interval after it (poses dead-reckoned by holding each twist until the next: the twist made
+#: them, so they say nothing about how it was sampled).
+SAMPLING_CANDIDATES = ("mean", "instant", "held")
+#: Standard errors by which the best candidate's mean misfit must beat each other's (paired over the samples) to be
+#: read (the detection offset's ``MIN_SIGMAS``, by the same reasoning: a model read wrong moves the offset search's
+#: zero by half an interval).
+SAMPLING_SIGMAS = 5.0
+#: Intervals longer than this many median intervals (gaps) give no candidate to the samples beside them.
+SAMPLING_GAP = 3.0
+
+
+def _interval_twists(t: np.ndarray, quat_xyzw: np.ndarray, position: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per interval between consecutive poses, the constant body twist that joins them (K - 1, 3) each: the
+    rotation increment's log over the step, and the position increment in the body frame at the interval's middle
+    orientation over the step (second order in the turn)."""
+    q = quat_xyzw / np.linalg.norm(quat_xyzw, axis=1, keepdims=True)
+    rots = quats_to_rots(np.ascontiguousarray(q))
+    dt = np.diff(t)[:, None]
+    turn = _increments(rots)
+    mid = np.einsum("nij,njk->nik", rots[:-1], so3_exps(0.5 * turn))
+    return turn / dt, np.einsum("nji,nj->ni", mid, np.diff(position, axis=0)) / dt
+
+
+def _read_candidate(measured: np.ndarray, rates: np.ndarray, dt: np.ndarray, ok: np.ndarray) -> dict:
+    """Which of ``SAMPLING_CANDIDATES`` the samples ``measured`` (interior ones, ``ok``) fit: the mean misfit of each
+    (the norm of the difference), and the standard errors by which the best beats the runner-up (paired). The
+    instantaneous candidate is the two intervals' rates (each at its middle) interpolated to the stamp."""
+    before, after = rates[:-1][ok], rates[1:][ok]
+    w = (dt[:-1][ok] / (dt[:-1][ok] + dt[1:][ok]))[:, None]  # the weight of the interval after the stamp
+    m = measured[1:-1][ok]
+    cands = {"mean": before, "instant": (1.0 - w) * before + w * after, "held": after}
+    err = {k: row_norms3(m - v) for k, v in cands.items()}
+    means = {k: float(np.mean(e)) for k, e in err.items()}
+    best = min(means, key=means.get)
+    z = np.inf
+    for k in cands:
+        if k != best:
+            d = err[k] - err[best]
+            se = float(np.std(d, ddof=1)) / np.sqrt(d.shape[0])
+            z = min(z, float(np.mean(d)) / se if se > 0 else np.inf)
+    return {"best": best, "sigmas": z, "misfit": {k: round(v, 6) for k, v in means.items()}}
+
+
+def twist_sampling(poses: PoseStream, angular: Vec3Stream, linear: Vec3Stream) -> dict | None:
+    """What each sample of an odometry's twist is (``SAMPLING_CANDIDATES``), read from the topic's own poses on
+    the same stamps: against the body twist joining consecutive poses (:func:`_interval_twists`), the twist at a
+    stamp equals the interval's before it where it is that interval's mean, the two intervals' mean (a central
+    difference) where it is the motion at the stamp, the interval's after it where the poses were dead-reckoned by
+    holding it. Read for the angular and the linear velocity apart; ``model`` is a candidate both read alike (or one
+    reads and the other is not told), each best by ``SAMPLING_SIGMAS`` standard errors, else None. None when the
+    poses are not on the twist's stamps or too few (fewer than 3 interior samples)."""
+    n = len(poses)
+    if n < 5 or len(angular) != n or len(linear) != n:
+        return None
+    if not (np.array_equal(poses.t_ns, angular.t_ns) and np.array_equal(poses.t_ns, linear.t_ns)):
+        return None
+    t = poses.t_ns.astype(np.float64) * 1e-9
+    dt = np.diff(t)
+    if not bool(np.all(dt > 0)):
+        return None
+    good = dt <= SAMPLING_GAP * float(np.median(dt))
+    ok = good[:-1] & good[1:]
+    if np.count_nonzero(ok) < 3:
+        return None
+    omega, vel = _interval_twists(t, poses.quat_xyzw, poses.position)
+    read = {k: _read_candidate(s.xyz, r, dt, ok) for k, s, r in (("angular", angular, omega), ("linear", linear, vel))}
+    told = {r["best"] for r in read.values() if r["sigmas"] >= SAMPLING_SIGMAS}
+    return {
+        "model": next(iter(told)) if len(told) == 1 else None,
+        "samples": int(np.count_nonzero(ok)),
+        **{k: {**r, "sigmas": round(float(min(r["sigmas"], 1e6)), 2)} for k, r in read.items()},  # no inf in run.json
+    }
+
+
+#: What the record says of a twist read as interval means (:func:`midpoint_restamped`).
+RESTAMPED = "restamped to interval midpoints"
+
+
+def midpoint_restamped(stream: Vec3Stream) -> Vec3Stream:
+    """A twist of interval means (:func:`twist_sampling` reads ``mean``) restamped to the midpoint of the interval
+    each sample covers, ``t_k − (t_k − t_{k−1})/2``, where it is the motion to second order: every consumer then takes
+    it as the motion at its stamp. The first sample, and one after a gap (an interval over ``SAMPLING_GAP`` median
+    intervals: a dropped message, not a longer mean), go back by half the median interval. Both clocks move alike."""
+    if len(stream) < 2:
+        return stream
+    dt = np.diff(stream.t_ns)
+    med = int(np.median(dt))
+    back = np.concatenate([[med], np.where(dt > SAMPLING_GAP * med, med, dt)]) // 2
+    return Vec3Stream(stream.topic, stream.frame_id, stream.t_ns - back, stream.rec_ns - back, stream.xyz)

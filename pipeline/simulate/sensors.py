@@ -275,6 +275,8 @@ class Simulation:
     camera: CameraSim = CameraSim()
     #: Added to the detections' stamps (and record times): a detection stream off the velocity clock.
     detection_offset_ns: int = 0
+    #: What each IMU and odometry sample is (:data:`SAMPLINGS`, :func:`_motion`).
+    sampling: str = "instant"
 
     @property
     def counts(self) -> dict[str, int]:
@@ -395,6 +397,7 @@ def simulation(
     start_ns: int = EPOCH_NS,
     camera: CameraSim | None = None,
     detection_offset: float = 0.0,
+    sampling: str = "instant",
 ) -> Simulation:
     """Every sensor stream of ``scenario`` (name or object) for ``duration`` seconds, to be generated.
 
@@ -403,6 +406,8 @@ def simulation(
     or images (with CameraInfo) instead of fiducial poses (:mod:`pipeline.simulate.camera`); without noise the
     corners are exact and the images clean (no pixel noise, blur or JPEG). ``detection_offset`` (seconds) is
     added to the detections' stamps: they are seen at the true time but stamped off the velocity clock.
+    ``sampling`` is what each IMU and odometry sample is (:data:`SAMPLINGS`): ``"instant"`` the motion at its stamp,
+    ``"mean"`` the mean over the sample interval before it (:func:`_motion`).
     """
     sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
     duration = sc.duration if duration is None else float(duration)
@@ -422,8 +427,12 @@ def simulation(
     cam = camera or CameraSim()
     if nm == NoiseModel.zero() and cam.output != "fiducials":
         cam = replace(cam, pixel_noise=0.0, image_noise=0.0, blur=0.0, jpeg_quality=None)
+    if sampling not in SAMPLINGS:
+        raise ValueError(f"sampling must be one of {', '.join(SAMPLINGS)}, got {sampling!r}")
     offset_ns = int(round(detection_offset * 1e9))
-    return Simulation(sc, duration, int(seed), nm, rates, start_ns, camera=cam, detection_offset_ns=offset_ns)
+    return Simulation(
+        sc, duration, int(seed), nm, rates, start_ns, camera=cam, detection_offset_ns=offset_ns, sampling=sampling
+    )
 
 
 def simulate(scenario: Scenario | str, **kwargs) -> SimLog:
@@ -441,8 +450,8 @@ def _piece(
         return _stamps(*span[name], sim.rates[name], _PHASE[name], start_ns)
 
     # one generator: the streams draw in this order (imu, odom, mag, detections, mocap), or the noise changes
-    imu = _imu(sc, rng, nm, *stamps("imu"), carry.rec["imu"])
-    odom, odom_carry = _odom(sc, rng, nm, *stamps("odom"), carry, sim.seed)
+    imu = _imu(sc, rng, nm, *stamps("imu"), carry.rec["imu"], _period(sim, "imu"))
+    odom, odom_carry = _odom(sc, rng, nm, *stamps("odom"), carry, sim.seed, _period(sim, "odom"))
     mag = _mag(sc, rng, nm, *stamps("mag"), carry.rec["mag"])
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
     camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
@@ -472,15 +481,45 @@ def _piece(
     return piece, _Carry(rec, odom_carry)
 
 
+#: What a low-rate sample may be: the motion at its stamp (what a gyro or wheel encoder read at that instant
+#: gives), or the mean over the sample interval before it (a downsampled or integrated stream: a VIO's twist may be
+#: one). An odometry read as such is restamped to its intervals' midpoints (docs/benchmarks.md, h-meanoffset2).
+SAMPLINGS = ("instant", "mean")
+#: Points of the midpoint rule an interval mean is taken over.
+MEAN_POINTS = 8
+
+
+def _period(sim: Simulation, stream: str) -> float:
+    """The interval a ``"mean"`` sample of ``stream`` averages over (s); 0 for instantaneous samples."""
+    return 1.0 / sim.rates[stream] if sim.sampling == "mean" else 0.0
+
+
+def _motion(sc: Scenario, t: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The body-frame angular velocity, linear velocity and specific force ``Rᵀ (a − g)`` (each (N, 3)) a sample
+    stamped at ``t`` reads: at ``t`` (``period`` 0), or their mean over ``(t − period, t]`` (``MEAN_POINTS``
+    midpoints)."""
+    if period <= 0.0:
+        tr = sc.sample(t)
+        return tr.omega, tr.v, np.einsum("nji,nj->ni", tr.R, tr.accel - GRAVITY)
+    parts = [_motion(sc, t - period * (j + 0.5) / MEAN_POINTS, 0.0) for j in range(MEAN_POINTS)]
+    return tuple(sum(p[i] for p in parts) / MEAN_POINTS for i in range(3))
+
+
 def _imu(
-    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray, rec_after: int
+    sc: Scenario,
+    rng: np.random.Generator,
+    nm: NoiseModel,
+    t_ns: np.ndarray,
+    t: np.ndarray,
+    rec_after: int,
+    period: float = 0.0,
 ) -> ImuData:
-    """IMU: biased gyro and specific force f = R^T (a - g), in the imu_link frame."""
-    tr = sc.sample(t)
+    """IMU: biased gyro and specific force f = R^T (a - g), in the imu_link frame (each sample the motion at its
+    stamp, or with ``period`` its mean over that interval before it: :func:`_motion`)."""
+    omega, _, f_body = _motion(sc, t, period)
     n = t.shape[0]
-    gyro = tr.omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
-    f_inertial = tr.accel - GRAVITY
-    accel = np.einsum("nji,nj->ni", tr.R, f_inertial) + _white(rng, nm.accel, (n, 3))
+    gyro = omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
+    accel = f_body + _white(rng, nm.accel, (n, 3))
     if sc.imu_rotation is not None:  # body-frame quantities seen from the turned imu_link: R_biᵀ x
         gyro, accel = gyro @ sc.imu_rotation, accel @ sc.imu_rotation
     return ImuData(t_ns, _record_times(rng, t_ns, rec_after), gyro, accel)
@@ -494,22 +533,28 @@ def _odom(
     t: np.ndarray,
     carry: _Carry,
     seed: int = 0,
+    period: float = 0.0,
 ) -> tuple[OdomData, tuple | None]:
     """Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist (continuing
-    from the previous piece's last sample); the data and the dead-reckoning state for the next piece."""
-    tr = sc.sample(t)
+    from the previous piece's last sample); the data and the dead-reckoning state for the next piece. Each twist
+    is the motion at its stamp, held until the next in the dead reckoning, or with ``period`` its mean over that
+    interval before the stamp (:func:`_motion`), which the dead reckoning holds over that interval (an integrating
+    odometry: the twist is the increment it reports)."""
+    omega, v, _ = _motion(sc, t, period)
     n = t.shape[0]
-    lin = tr.v + sc.velocity_bias + _white(rng, nm.odom_linear, (n, 3))
+    lin = v + sc.velocity_bias + _white(rng, nm.odom_linear, (n, 3))
     if nm.odom_linear_drift > 0.0:
         lin += _drift(seed, nm.odom_linear_drift, nm.odom_linear_drift_s, t)
-    ang = tr.omega + _white(rng, nm.odom_angular, (n, 3))
+    ang = omega + _white(rng, nm.odom_angular, (n, 3))
+    lead = 1 if period > 0.0 else 0  # the interval before each stamp, or after it
     if carry.odom is None:
-        rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), ang[:-1], lin[:-1], np.diff(t))
+        rs, ps = integrate_body_twists(
+            np.eye(3), np.zeros(3), ang[lead : n - 1 + lead], lin[lead : n - 1 + lead], np.diff(t)
+        )
     else:  # continue from the last sample of the previous piece
         r0, p0, ang0, lin0, t0 = carry.odom
-        rs, ps = integrate_body_twists(
-            r0, p0, np.vstack([ang0, ang[:-1]]), np.vstack([lin0, lin[:-1]]), np.diff(np.concatenate([[t0], t]))
-        )
+        held_ang, held_lin = (ang, lin) if lead else (np.vstack([ang0, ang[:-1]]), np.vstack([lin0, lin[:-1]]))
+        rs, ps = integrate_body_twists(r0, p0, held_ang, held_lin, np.diff(np.concatenate([[t0], t])))
         rs, ps = rs[1:], ps[1:]
     odom = OdomData(t_ns, _record_times(rng, t_ns, carry.rec["odom"]), lin, ang, ps, rots_to_quats(rs))
     odom_carry = (rs[-1].copy(), ps[-1].copy(), ang[-1:].copy(), lin[-1:].copy(), float(t[-1])) if n else carry.odom
