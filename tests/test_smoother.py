@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from smoother_checks import preintegrated
 
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.config import parse_config
@@ -55,22 +56,7 @@ def random_interval(rng):
     vel = rng.normal(size=(n, 3)) + [2.0, 0.0, 0.0]
     kf_t = np.array([0.0, 0.05, 0.12, vel_t[-1]])
     b_bar = rng.normal(size=6) * 0.05
-    data = np.zeros((3, 75))
-    cov = np.zeros((3, 6, 6))
-    preintegrate(
-        vel_t,
-        omega,
-        vel,
-        kf_t,
-        b_bar,
-        np.full(3, 1e-6),
-        np.full(3, 1e-4),
-        np.zeros(2),
-        np.ones(vel_t.size),
-        np.ones(vel_t.size),
-        data,
-        cov,
-    )
+    data, cov = preintegrated(vel_t, omega, vel, kf_t, b_bar, 1e-6, 1e-4)
     return vel_t, omega, vel, kf_t, b_bar, data, cov
 
 
@@ -87,21 +73,7 @@ def test_preintegration_is_the_dead_reckoned_relative_motion_and_its_bias_jacobi
     for c in range(6):
         db = np.zeros(6)
         db[c] = eps
-        other = np.zeros((3, 75))
-        preintegrate(
-            vel_t,
-            omega,
-            vel,
-            kf_t,
-            b_bar + db,
-            np.full(3, 1e-6),
-            np.full(3, 1e-4),
-            np.zeros(2),
-            np.ones(vel_t.size),
-            np.ones(vel_t.size),
-            other,
-            np.zeros((3, 6, 6)),
-        )
+        other = preintegrated(vel_t, omega, vel, kf_t, b_bar + db, 1e-6, 1e-4)[0]
         for j in range(3):
             d_r0, d_r1 = data[j, :9].reshape(3, 3), other[j, :9].reshape(3, 3)
             num_r = so3_log(d_r0.T @ d_r1) / eps

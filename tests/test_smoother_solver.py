@@ -7,9 +7,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from smoother_checks import preintegrated
 
 from slamobs.pipeline.smoother import graph as g
-from slamobs.pipeline.smoother.preintegration import D_W, dead_reckon, preintegrate, whitening
+from slamobs.pipeline.smoother.preintegration import D_W, dead_reckon, whitening
 from slamobs.pipeline.smoother.solver import border_row, pose_marginals, retract
 
 K, N_LM, N_SEG = 30, 4, 2
@@ -25,21 +26,7 @@ def case():
     vel = rng.normal(size=(vel_t.size, 3)) * 0.2 + [1.0, 0.0, 0.0]
     kf_t = vel_t[::10]
     b_bar = rng.normal(size=6) * 0.01
-    data, cov = np.zeros((K - 1, 75)), np.zeros((K - 1, 6, 6))
-    preintegrate(
-        vel_t,
-        omega,
-        vel,
-        kf_t,
-        b_bar,
-        np.full(3, 1e-5),
-        np.full(3, 1e-3),
-        np.zeros(2),
-        np.ones(vel_t.size),
-        np.ones(vel_t.size),
-        data,
-        cov,
-    )
+    data, cov = preintegrated(vel_t, omega, vel, kf_t, b_bar, 1e-5, 1e-3)
     data[:, D_W:] = whitening(cov).reshape(-1, 36)
     rot, pos = np.empty((K, 3, 3)), np.empty((K, 3))
     dead_reckon(vel_t, omega, vel, kf_t, b_bar, np.eye(3), np.zeros(3), rot, pos)
