@@ -300,7 +300,8 @@ def _velocity_checks(role, topic, built, selection, table, rows, streams, note, 
             and gyro.topic == topic
             and "angular_velocity" not in streams.derived
         ):
-            streams.twist_sampling = _sampling_read(rows[topic], gyro, stream)
+            read = streams.odometry_poses.get(role)  # the poses at this twist's stamps, where every one has one
+            streams.twist_sampling = _sampling_read(read[0], gyro, stream) if read else None
             if streams.twist_sampling and streams.twist_sampling["model"] == "mean":
                 streams.angular_velocity, stream = _midpoints(streams.twist_sampling, gyro, stream)
         return stream, cleaning
@@ -309,13 +310,12 @@ def _velocity_checks(role, topic, built, selection, table, rows, streams, note, 
     return stream, cleaning
 
 
-def _sampling_read(rows: Rows, angular: Vec3Stream, linear: Vec3Stream) -> dict | None:
+def _sampling_read(poses: PoseStream, angular: Vec3Stream, linear: Vec3Stream) -> dict | None:
     """What each sample of an odometry twist that is both velocities is (:func:`.odometry.twist_sampling`), read
-    against the topic's own poses; None where they are not on the twist's stamps."""
+    against the topic's own ``poses`` at the twist's stamps (those :func:`_odometry_twist` kept)."""
     from .odometry import twist_sampling  # lazy, as :func:`_odometry_twist`
 
-    poses = _poses_at(pose_stream(rows)[0], linear.t_ns)
-    return twist_sampling(poses, angular, linear) if poses is not None else None
+    return twist_sampling(poses, angular, linear)
 
 
 def _midpoints(read: dict, angular: Vec3Stream, linear: Vec3Stream) -> tuple[Vec3Stream, Vec3Stream]:
