@@ -12,6 +12,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round6 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round9 [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
@@ -24,7 +25,11 @@ landmark seen once, 2 or 500 landmarks, duplicated, bursty or reordered detectio
 /tf_static, a wrong stated camera extrinsic (docs/benchmarks.md, "Logs nobody has run yet, round 7"). ``--set
 round8``: session 36's (``ROUND8``): a 1 kHz IMU, still for 80 % of the log, the truth at 1 Hz, lost or late, a
 camera on a lever arm or looking backwards, covariances stated 1e-4x, an id reused, a clock jumping back, a vehicle
-that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run yet, round 8").
+that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run yet, round 8"). ``--set round9``:
+session 37's (``ROUND9``): a twist in wrong axes, slipping on turns or of a point ahead of the body, the IMU
+slower than the odometry, an id flipping, a truth starting late or drifting, a camera blind every other second, a
+gyro's scale or bias, 30 s, an aggressive flight, 2 landmarks for 5 min, coarse IMU stamps, a varying detection
+latency (docs/benchmarks.md, "Logs nobody has run yet, round 9").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -112,6 +117,25 @@ class Case:
     cam_t: tuple[float, float, float] | None = None  # the camera's position on the body (its tf_static saying so)
     reused_id: tuple[int, int, float] | None = None  # (a, b, from s): tag a gone, tag b carries id a (b unseen before)
     clock_back: tuple[float, float] | None = None  # (at s, back s): every stamp and record after it moved back
+    # round 9: a twist in the wrong axes or slipping, a landmark's id flipping, a truth that starts late or drifts,
+    # a gyro's scale or bias uncalibrated, stamps on a coarse tick, a detection latency varying per frame
+    twist_axes: tuple[tuple[float, ...], ...] | None = (
+        None  # the twist's linear velocity written as this matrix times it
+    )
+    slip: float = 0.0  # the twist's linear velocity this share long at the sharpest turn, in proportion to |yaw rate|
+    twist_lever: tuple[float, float, float] = (
+        0.0,
+        0.0,
+        0.0,
+    )  # the twist the velocity of this body point (m), not the origin's
+    flip_id: tuple[int, int, float] | None = None  # (a, b, share): that share of landmark a's detections carry id b
+    truth_from: float = 0.0  # the motion capture's samples before this many seconds dropped (it starts late)
+    truth_drift: float = 0.0  # the motion capture's clock runs this much fast (its stamps' time since start times 1+x)
+    gyro_scale: float = 1.0  # the gyro's readings times this (an uncalibrated scale factor)
+    gyro_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)  # a constant gyro bias added (rad/s)
+    stamp_tick: tuple[str, float] | None = None  # (stream, tick s): that stream's stamps floored to the tick
+    det_latency: float = 0.0  # each detection frame stamped uniform 0..det_latency s late (its arrival, not exposure)
+    flight_period: float = 30.0  # the flight's figure 8 period (15: twice the speeds and rates)
 
 
 CASES = (
@@ -368,6 +392,48 @@ CLIPPED2 = (
     Case(3958, "handheld", 90, "hand-held, quiet gyro clipped at 2 rad/s", wobble=0.6, gyro_x=1, gyro_clip=2.0, **R6),
     Case(3959, "ground", 180, "ground robot, gyro clipped at 0.2 rad/s", "ros2", gyro_clip=0.2, **R6),
 )
+#: round 9 (session 37, docs/benchmarks.md "Logs nobody has run yet, round 9"): a twist in a wrong child frame
+#: (optical axes, turned 90 deg), wheels slipping on turns, the IMU slower than the odometry, a landmark's id
+#: flipping, a truth that starts 20 s late or drifts, a camera blind every other second, a gyro's scale or bias
+#: uncalibrated, 30 s only, an aggressive flight, 2 landmarks for 5 min, IMU stamps on a 10 ms tick, a detection
+#: latency varying per frame, the twist of a point 0.2 m ahead of the body
+OPTICAL = ((0.0, -1.0, 0.0), (0.0, 0.0, -1.0), (1.0, 0.0, 0.0))  # body (x fwd, y left, z up) -> optical (z fwd)
+ROUND9 = (
+    Case(4110, "handheld", 90, "twist in the optical frame's axes", twist_axes=OPTICAL, **R6),
+    Case(4111, "ground", 180, "ground, twist's axes turned 90 deg", "bag", twist_yaw_deg=90.0, **R6),
+    Case(4112, "ground", 180, "ground, wheels slip 0-30 % on turns", slip=0.3, **R6),
+    Case(4113, "handheld", 90, "IMU 50 Hz, odometry 100 Hz", imu_hz=50, odom_hz=100),
+    Case(4114, "flight", 90, "flight, IMU 50 Hz, odometry 100 Hz", "ros2", imu_hz=50, odom_hz=100),
+    Case(4115, "handheld", 90, "id 10 reads 110 in half its detections", flip_id=(10, 110, 0.5), **R6),
+    Case(4116, "handheld", 90, "truth starts at 20 s", truth_from=20.0, **R6),
+    Case(
+        4117,
+        "handheld",
+        90,
+        "camera blind every other second",
+        "bag",
+        gaps=tuple((k + 1.0, k + 2.0) for k in range(0, 90, 2)),
+        **R6,
+    ),
+    Case(4118, "ground", 300, "ground, truth clock drifts 1e-4", truth_drift=1e-4, **R6),
+    Case(4119, "handheld", 120, "truth clock drifts 1e-3", "ros2", truth_drift=1e-3, **R6),
+    Case(4120, "handheld", 90, "gyro scale +3 %", gyro_scale=1.03, **R6),
+    Case(4121, "flight", 90, "flight, gyro bias (0.05, -0.03, 0.08) rad/s", gyro_bias=(0.05, -0.03, 0.08), **R6),
+    Case(4122, "ground", 30, "ground robot, 30 s only", **R6),
+    Case(4123, "flight", 90, "flight, 15 s period: 6.4 m/s, yaw rate 2 rad/s", "bag", flight_period=15.0, **R6),
+    Case(4124, "ground", 300, "ground, 2 landmarks, 5 min", keep_ids=2, **R6),
+    Case(4125, "handheld", 90, "IMU stamps on a 10 ms tick (pairs share one)", stamp_tick=("imu", 0.01), **R6),
+    Case(4126, "handheld", 90, "detection latency 0-0.3 s per frame", det_latency=0.3, **R6),
+    Case(
+        4127,
+        "handheld",
+        90,
+        "twist of a point 0.2 m ahead (camera's, not the body's)",
+        "ros2",
+        twist_lever=(0.2, 0.0, 0.0),
+        **R6,
+    ),
+)
 SETS = {
     "round4": CASES,
     "round5": ROUND5,
@@ -376,6 +442,7 @@ SETS = {
     "clipped": CLIPPED,
     "round8": ROUND8,
     "clipped2": CLIPPED2,
+    "round9": ROUND9,
 }
 
 
@@ -437,7 +504,7 @@ def scenario(case: Case):
     elif case.scenario == "spin":
         sc = replace(handheld(), name="spin", trajectory=spin_trajectory)
     elif case.scenario == "flight":
-        sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory())
+        sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory(case.flight_period))
     elif case.scenario != "handheld":
         sc = get_scenario(case.scenario)
     else:
@@ -607,6 +674,47 @@ def misdrawn8(sim, case: Case):
     return replace(sim, **streams)
 
 
+def misdrawn9(sim, case: Case, sc):
+    """Round 9's changes to the drawn log (from a generator of their own): the twist in wrong axes, slipping on
+    turns or biased, a landmark's id flipping, the motion capture starting late or on a drifting clock, the gyro's
+    scale and bias, a stream's stamps on a coarse tick, a detection latency varying per frame."""
+    rng = np.random.default_rng(case.seed + 17)
+    det, imu, odom, moc = sim.detections, sim.imu, sim.odom, sim.mocap
+    linear = odom.linear
+    if case.slip:
+        yaw_rate = np.abs(sc.sample((odom.t_ns - sim.start_ns) * 1e-9).omega[:, 2])
+        linear = linear * (1.0 + case.slip * yaw_rate / max(yaw_rate.max(), 1e-9))[:, None]
+    if any(case.twist_lever):
+        omega = sc.sample((odom.t_ns - sim.start_ns) * 1e-9).omega
+        linear = linear + np.cross(omega, np.asarray(case.twist_lever, float))
+    if case.twist_axes is not None:
+        linear = linear @ np.asarray(case.twist_axes, float).T
+    odom = replace(odom, linear=linear)
+    if case.gyro_scale != 1.0 or any(case.gyro_bias):
+        imu = replace(imu, gyro=case.gyro_scale * imu.gyro + np.asarray(case.gyro_bias, float))
+        truth = json.loads(json.dumps(sim.truth))  # the bias the report holds the estimate against
+        truth["gyro_bias"] = list(case.gyro_scale * np.asarray(truth["gyro_bias"]) + np.asarray(case.gyro_bias))
+        sim = replace(sim, truth=truth)
+    if case.flip_id:
+        a, b, share = case.flip_id
+        ids = det.ids.copy()
+        ids[(ids == a) & (rng.random(len(ids)) < share)] = b
+        det = replace(det, ids=ids)
+    if case.det_latency:
+        late = np.round(rng.uniform(0.0, case.det_latency, len(det.t_ns)) * 1e9).astype(np.int64)
+        det = replace(det, t_ns=det.t_ns + late, rec_ns=np.maximum(det.rec_ns, det.t_ns + late))
+    if case.truth_from:
+        moc = _rows(moc, (moc.t_ns - sim.start_ns) * 1e-9 >= case.truth_from)
+    if case.truth_drift:
+        moc = replace(moc, t_ns=moc.t_ns + np.round((moc.t_ns - sim.start_ns) * case.truth_drift).astype(np.int64))
+    streams = {"imu": imu, "odom": odom, "detections": det, "mocap": moc}
+    if case.stamp_tick:
+        name, tick = case.stamp_tick
+        d, step = streams[name], int(round(tick * 1e9))
+        streams[name] = replace(d, t_ns=sim.start_ns + (d.t_ns - sim.start_ns) // step * step)
+    return replace(sim, **streams)
+
+
 def perturb(sim, case: Case):
     """What the simulator does not draw: the gyro bias's random walk, silent streams, jittered stamps (from their
     own generator, so the simulator's draws are those of the plain case)."""
@@ -650,7 +758,7 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
     sim = simulate(
         sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, sampling=case.sampling, **kw
     )
-    sim = misdrawn8(misdrawn7(misdrawn(perturb(sim, case), case, sc), case), case)
+    sim = misdrawn9(misdrawn8(misdrawn7(misdrawn(perturb(sim, case), case, sc), case), case), case, sc)
     stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
     if case.truncate:
