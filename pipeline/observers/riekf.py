@@ -1339,7 +1339,6 @@ def update(
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
     lone = False  # the frame's only update, far off for its linearisation: iterated (_iterated)
-    xi_lone = np.zeros(0)  # SCRATCH v3: its iterated step, taken by the state; Σ downdated by the plain update
     if m == 1:
         srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
@@ -1356,18 +1355,8 @@ def update(
             los = np.empty(3)  # the detection's line of sight R̂y
             for c in range(3):
                 los[c] = r_hat[c, 0] * y0 + r_hat[c, 1] * y1 + r_hat[c, 2] * y2
-            zl = z[:3].copy()  # the iterated system apart: its step is the state's, the plain one downdates Σ
-            hl = np.zeros((3, hp.shape[1]))
-            sml = np.empty((3, 3))
-            _iterated(cov, d, N_FIXED + 3 * slot_of[det_idx[a0 + jl]], zl, sig2[jl], ues[jl], los, hl, sml)
-            if cholesky_lower(sml, np.int64(3)):
-                wl = np.empty(3)
-                _solve3(sml, zl, wl)
-                xi_lone = np.zeros(d)
-                for c in range(3):
-                    for b in range(d):
-                        xi_lone[b] += hl[c, b] * wl[c]
-        if True:
+            _iterated(cov, d, N_FIXED + 3 * slot_of[det_idx[a0 + jl]], z, sig2[jl], ues[jl], los, hp, smat)
+        else:
             # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
             # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
             for q in range(m):
@@ -1397,8 +1386,6 @@ def update(
             ns[_SKIPPED] += 1
         else:
             xi = _gain(hp, smat, z, k3, d)
-            if xi_lone.shape[0] > 0:
-                xi = xi_lone
             _bias_corrections(xi, hp, k3, win_sum)
             terms += k3
     rows = np.empty(max(next_nd, 0), np.int64)  # the next frame's known landmarks: their rows of Σ mirrored
