@@ -28,6 +28,12 @@ Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
   and that over the robust scale (a heavy tail within the range is over 1), against the law's σ at the bin's median
   range (docs/noise.md, "Wild detections"). With it, every table's levels are estimated as a run estimates them
   (the velocity density from the samples as recorded, not as aligned).
+* ``--ratio``: a sixth table, the range's error against the error across the line of sight (bearing error times the
+  detection's range), mis-associations left out as in ``--shared``: their RMS and ratio, beside the ratio ``noise:
+  auto`` gives riekf (``detection_ratio``, 1 where kept at 1), and the correlation of two detections of one landmark
+  at most ``MAX_TRIPLET_S`` apart (per-landmark means kept), along and across: the share of each error a triplet's
+  second difference cancels (docs/benchmarks.md, "riekf's range-against-bearing ratio on MR.CLAM from the log
+  alone").
 """
 
 from __future__ import annotations
@@ -262,10 +268,31 @@ def law_cells(streams, aligned, law) -> list[str]:
     return cells
 
 
+def ratio_cells(streams, aligned, ratio) -> list[str]:
+    """The ``--ratio`` table's cells for one robot (module docstring); ``ratio``: ``noise: auto``'s estimate or None."""
+    from slamobs.pipeline.noise_estimation import MAX_TRIPLET_S
+
+    dr, db, t, lm = detection_errors(streams, aligned)
+    across = db * np.linalg.norm(aligned.det_y[:, :2], axis=1)
+    ok = np.abs(db) < MISASSOCIATED_RAD
+    dr, across, t, lm = dr[ok], across[ok], t[ok], lm[ok]
+    order = np.lexsort((t, lm))
+    dr, across, t, lm = dr[order], across[order], t[order], lm[order]
+    near = (lm[1:] == lm[:-1]) & (np.diff(t) <= MAX_TRIPLET_S)
+    along_rms, across_rms = float(np.sqrt(np.mean(dr**2))), float(np.sqrt(np.mean(across**2)))
+    return [
+        f"{along_rms:.3f} / {across_rms:.3f}",
+        f"{along_rms / across_rms:.2f}",
+        "1 (kept)" if ratio is None else f"{float(ratio.value):.2f} ± {float(ratio.uncertainty):.2f}",
+        " / ".join(f"{np.corrcoef(x[:-1][near], x[1:][near])[0, 1]:.2f}" for x in (dr, across)),
+    ]
+
+
 def main() -> None:
     from slamobs.pipeline.alignment import align
     from slamobs.pipeline.api import read_log
     from slamobs.pipeline.noise import estimate_log_noise, resolve_noise, stream_density
+    from slamobs.pipeline.noise_estimation import MAX_TRIPLET_S
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", default="mrclam6,mrclam7", help="comma-separated MR.CLAM robots or datasets")
@@ -273,12 +300,13 @@ def main() -> None:
     ap.add_argument("--speed", action="store_true", help="also the commanded speed's error taken apart (third table)")
     ap.add_argument("--shared", action="store_true", help="also the detections' error shared across landmarks (fourth)")
     ap.add_argument("--law", action="store_true", help="also the detection law beside the truth's per range (fifth)")
+    ap.add_argument("--ratio", action="store_true", help="also the range's error against the across one (sixth)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
     heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
     print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
-    rows, speed, shared, laws = [], [], [], []
+    rows, speed, shared, laws, ratios = [], [], [], [], []
     for log in logs:
         streams = read_log(log.path)
         aligned = align(streams)
@@ -296,6 +324,8 @@ def main() -> None:
             shared.append(f"| {log.name} | " + " | ".join(shared_cells(streams, aligned)) + " |")
         if args.law and estimated.detection is not None:
             laws.append(f"| {log.name} | " + " | ".join(law_cells(streams, aligned, estimated.detection)) + " |")
+        if args.ratio:
+            ratios.append(f"| {log.name} | " + " | ".join(ratio_cells(streams, aligned, estimated.ratio)) + " |")
     lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
     print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
     print("\n".join(rows))
@@ -315,6 +345,12 @@ def main() -> None:
         bins = " | ".join(f"{lo:g}-{hi:g} m" for lo, hi in zip(LAW_BINS_M[:-1], LAW_BINS_M[1:]))
         print(f"\n| robot (truth / law σ m, truth RMS over its robust scale) | {bins} |\n|" + " --- |" * 5)
         print("\n".join(laws))
+    if ratios:
+        print(
+            f"\n| robot | range / across RMS m | truth's ratio | noise: auto's ratio | correlation within "
+            f"{MAX_TRIPLET_S:g} s, range / across |\n|" + " --- |" * 5
+        )
+        print("\n".join(ratios))
 
 
 if __name__ == "__main__":
