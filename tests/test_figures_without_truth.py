@@ -463,6 +463,32 @@ def test_a_bias_figure_s_y_labels_stay_inside_the_figure(drawn_figures):
     assert small.subplotpars.left > plain.subplotpars.left
 
 
+def test_an_rpe_plot_s_three_line_title_stays_inside_the_figure(drawn_figures):
+    """`slamobs evaluate --metric rpe -p` (round 24, evo's EuRoC V1_01 OpenVINS files): the title is evo's three
+    lines, "RPE w.r.t. rotation angle in degrees (deg)" / "for delta = 1.0 (m) using consecutive pairs" / "(not
+    aligned)", and the first, the one that says what is plotted, was drawn above the figure's top edge (fixed
+    margins in inches). The grid moves down by what a title reaches past the top; the gap between the rows is
+    kept."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.linspace(0.0, 130.0, 60)
+    xyz = np.column_stack([np.cos(t / 20.0), np.sin(t / 20.0), 0.01 * t])
+    errors = 0.2 + 0.1 * np.sin(t)
+    stats = {"rmse": 0.25, "median": 0.2, "mean": 0.21, "std": 0.07}
+    title = "RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using consecutive pairs\n(not aligned)"
+    plots.plot_error_result(io.BytesIO(), t, errors, stats, xyz, xyz, xyz, title=title, label="RPE (deg)")
+    (fig,) = drawn_figures
+    renderer = fig.canvas.get_renderer()
+    top = fig.get_figheight() * fig.dpi
+    for ax in fig.axes:
+        assert ax.title.get_window_extent(renderer).y1 <= top, ax.get_title()
+    upper, trajectory = fig.axes[:2]  # the error over time; the trajectory panel below it
+    assert upper.get_title() == title
+    assert upper.xaxis.get_tightbbox(renderer).y0 > trajectory.title.get_window_extent(renderer).y1  # no overlap
+
+
 def test_the_innovation_median_is_drawn_over_the_percentile_and_maximum(drawn_figures):
     """TagSLAM test_22's measurements.png: one or two detections per time bin, so median, 95th percentile and
     maximum are one value; the median, drawn first, lay under the other two and its blue line was nowhere."""
