@@ -164,6 +164,28 @@ def test_save_results_and_plots(files, tmp_path, monkeypatch):
     assert res.exit_code == 2 and (tmp_path / "notes.png").read_text() == "mine"
 
 
+def test_an_evo_result_archive_given_as_a_log_or_a_trajectory_says_what_it_holds(files, tmp_path, monkeypatch):
+    """evo's `res_files/orb_ape.zip` (round 24): `info` said "zip-compressed: decompress it first", which gives no
+    log, and `evaluate` "unknown trajectory format"; both now say it is an evo result archive, of which pair, its
+    rmse, and what reads it. Another zip still says to decompress it."""
+    monkeypatch.chdir(tmp_path)
+    res = invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-a", "-q", "--save_results", "res.zip")
+    assert res.exit_code == 0, res.output
+    rmse = json.loads(invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-a", "--json").stdout)
+    said = f"an evo result archive: APE w.r.t. translation part (m) of {files / 'est.txt'} against "
+    for args in (("info", "res.zip"), ("evaluate", files / "truth.txt", "res.zip"), ("run", "res.zip", "-o", "o")):
+        res = invoke(*args)
+        assert res.exit_code == 2 and said in res.stderr, res.stderr
+        assert f"rmse {rmse['stats']['rmse']:.6g}; it holds an evaluation's errors" in res.stderr
+        assert "decompress" not in res.stderr and len(res.stderr.splitlines()) == 1
+    import zipfile
+
+    with zipfile.ZipFile("other.zip", "w") as archive:
+        archive.writestr("notes.txt", "x")
+    res = invoke("info", "other.zip")
+    assert res.exit_code == 2 and "zip-compressed: decompress it first" in res.stderr
+
+
 def test_a_wrong_positional_form_is_one_usage_line():
     res = invoke("evaluate", "euroc", "a", "b", "c")
     assert res.exit_code == 2 and "LOG TOPIC TOPIC" in res.stderr
