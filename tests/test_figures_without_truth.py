@@ -362,6 +362,27 @@ def test_the_3d_view_is_drawn_to_one_scale_and_says_when_its_height_is_stretched
     plt.close("all")
 
 
+def test_a_path_at_one_height_is_said_level_not_stretched_by_a_billion():
+    """evo's tf_example (odom -> base_footprint, planar) with `evaluate ... -p`: z is 0 everywhere and the title
+    said "z stretched 7.11e+08x" (the height's floor of 1e-9 m). A path whose height varies by less than the
+    step lengths are written at has no height to stretch: " (z constant)"; a path 1 mm high is still stretched."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slamobs.pipeline.evaluation.plots import MIN_Z_SHARE, one_scale_3d
+
+    s = np.linspace(0.0, 1.0, 200)
+    flat = np.column_stack([1.2 * s, -3.0 * s, np.zeros_like(s)])
+    ax = plt.figure().add_subplot(projection="3d")
+    assert one_scale_3d(ax, flat) == " (z constant)"
+    assert one_scale_3d(ax, flat + [0.0, 0.0, 5.0]) == " (z constant)"
+    low = flat + np.column_stack([0 * s, 0 * s, 0.001 * s])
+    assert one_scale_3d(ax, low) == f" (z stretched {MIN_Z_SHARE * 3.0 / 0.001:.3g}x)"
+    plt.close("all")
+
+
 def test_the_3d_view_s_short_side_gets_fewer_ticks():
     """TagSLAM test 11's trajectory: 18 m in x, 5 m in y, 16 m in z; drawn to one scale the y side is short, and its
     six tick labels (-4 to 1) drew over one another. A side gets tick intervals in proportion to its length."""

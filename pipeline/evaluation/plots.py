@@ -17,6 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
+from slamobs.schemas import LENGTH_STEP_EXP
+
 MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable and are left out
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
@@ -642,7 +644,8 @@ def one_scale_3d(ax, xyz: np.ndarray) -> str:
     """Draw the 3D axes ``ax`` of the points ``xyz`` to one scale in x, y and z (matplotlib stretches each axis
     to the box, so 1 m of height looked as long as 40 m of path), z at least ``MIN_Z_SHARE`` of the horizontal
     extent, and a short horizontal side with fewer ticks (``MAX_3D_BINS``); returns the title's note of that
-    stretch ("" when there is none)."""
+    stretch (" (one scale)" when there is none, " (z constant)" for a path whose height varies by less than the
+    step lengths are written at, ``schemas.LENGTH_STEP_EXP``: there is no height to stretch)."""
     span = np.ptp(xyz, axis=0) if len(xyz) else np.zeros(3)
     wide = max(float(span[0]), float(span[1]), 1e-9)
     height = max(float(span[2]), MIN_Z_SHARE * wide)
@@ -654,7 +657,9 @@ def one_scale_3d(ax, xyz: np.ndarray) -> str:
     longest = max(sides)
     for axis, side in ((ax.xaxis, sides[0]), (ax.yaxis, sides[1])):  # a short side's ticks in proportion
         axis.set_major_locator(MaxNLocator(max(2, round(MAX_3D_BINS * side / longest))))
-    stretch = height / max(float(span[2]), 1e-9)
+    if float(span[2]) < 2.0**LENGTH_STEP_EXP:  # level below the step lengths are written at: nothing to stretch
+        return " (z constant)"  # a planar TF or odometry's path said "z stretched 7.11e+08x"
+    stretch = height / float(span[2])
     return f" (z stretched {stretch:.3g}x)" if stretch > 1.01 else " (one scale)"
 
 
