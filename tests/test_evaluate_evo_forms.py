@@ -186,6 +186,17 @@ def test_an_evo_result_archive_given_as_a_log_or_a_trajectory_says_what_it_holds
     assert res.exit_code == 2 and "zip-compressed: decompress it first" in res.stderr
 
 
+def test_a_kitti_times_file_given_as_a_trajectory_says_what_it_is(files, tmp_path):
+    """evo's `KITTI_00_gt_times.txt` beside `KITTI_00_gt.txt` (round 24): `evaluate GT TIMES` said "unknown
+    trajectory format"; a file of one number a line is named as KITTI's times.txt, with how KITTI poses pair and
+    where a run takes such stamps."""
+    times = tmp_path / "times.txt"
+    np.savetxt(times, np.arange(200) * 0.1, fmt="%.6e")
+    res = invoke("evaluate", files / "truth.kitti", times)
+    assert res.exit_code == 2 and "one number a line: KITTI's times.txt, not poses?" in res.stderr, res.stderr
+    assert "evaluation.truth_times" in res.stderr and len(res.stderr.splitlines()) == 1
+
+
 def test_a_wrong_positional_form_is_one_usage_line():
     res = invoke("evaluate", "euroc", "a", "b", "c")
     assert res.exit_code == 2 and "LOG TOPIC TOPIC" in res.stderr

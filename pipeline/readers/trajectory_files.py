@@ -491,6 +491,13 @@ def detect_format(path: str | Path) -> str:
             return "tum"
         if len(tok) == 12:
             return "kitti"
+        if len(tok) == 1 and re.fullmatch(r"[+-]?[\d.]+(?:[eE][+-]?\d+)?", tok[0]):
+            raise InputError(
+                path,
+                "one number a line: KITTI's times.txt, not poses? KITTI pose files are paired by index "
+                "(`slamobs evaluate kitti GT.txt EST.txt`); a run takes such stamps for a KITTI truth as "
+                "evaluation.truth_times",
+            )
         break
     if said := evo_result_hint(path):  # a zip without evo's stats.json gets ""
         raise InputError(path, "not a trajectory" + said)
