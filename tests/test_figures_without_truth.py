@@ -510,6 +510,31 @@ def test_an_rpe_plot_s_three_line_title_stays_inside_the_figure(drawn_figures):
     assert upper.xaxis.get_tightbbox(renderer).y0 > trajectory.title.get_window_extent(renderer).y1  # no overlap
 
 
+def test_an_evaluate_plot_draws_no_line_across_a_stretch_without_pairs(drawn_figures):
+    """evo's TUM fr2_desk ORB-SLAM estimate (`evaluate tum ... -as -p`, round 24): 719 of its 2893 poses have no
+    truth stamp, and the error over time and the reference path were drawn as straight lines across the 14 s
+    without pairs, errors and a path nobody measured. Both break there (``break_at_gaps``, as the innovation
+    figure does); the pairs' values are drawn as before."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.concatenate([np.arange(0.0, 30.0, 0.1), np.arange(45.0, 100.0, 0.1)])
+    xyz = np.column_stack([np.cos(t / 10.0), np.sin(t / 10.0), np.zeros_like(t)])
+    errors = 0.005 + 0.001 * np.sin(t)
+    stats = {"rmse": 0.006, "median": 0.005, "mean": 0.005, "std": 0.001}
+    plots.plot_error_result(io.BytesIO(), t, errors, stats, xyz, xyz, xyz, plot_mode="xy", label="APE (m)")
+    (fig,) = drawn_figures
+    upper, trajectory = fig.axes[:2]
+    (line,) = [ln for ln in upper.get_lines() if ln.get_label() == "APE (m)"]
+    x, y = (np.asarray(v, dtype=np.float64) for v in line.get_data())
+    gap = np.flatnonzero(np.isnan(y))
+    assert len(gap) == 1 and x[gap[0] - 1] < 30.0 and x[gap[0] + 1] == pytest.approx(45.0)
+    assert np.array_equal(y[np.isfinite(y)], errors)
+    (reference,) = [ln for ln in trajectory.get_lines() if ln.get_label() == "reference"]
+    assert np.isnan(np.asarray(reference.get_xdata(), dtype=np.float64)).sum() == 1
+
+
 def test_the_innovation_median_is_drawn_over_the_percentile_and_maximum(drawn_figures):
     """TagSLAM test_22's measurements.png: one or two detections per time bin, so median, 95th percentile and
     maximum are one value; the median, drawn first, lay under the other two and its blue line was nowhere."""

@@ -881,7 +881,8 @@ def plot_error_result(
     fig, axes = _figure(2, 1, (9.0, 11.0), gap=0.8)
     raw = axes[0, 0]
     sel = envelope(len(t_s), [errors])
-    raw.plot(t_s[sel], errors[sel], color="0.35", lw=1.0, label=label)
+    # no line across a stretch without pairs (a truth's or a tracker's loss): it would show errors nobody measured
+    raw.plot(*break_at_gaps(t_s[sel], errors[sel]), color="0.35", lw=1.0, label=label)
     for key, colour in (("rmse", "tab:blue"), ("median", "tab:green"), ("mean", "tab:red")):
         raw.axhline(stats[key], color=colour, lw=1.2, label=key)
     raw.axhspan(stats["mean"] - stats["std"], stats["mean"] + stats["std"], color="tab:olive", alpha=0.3, label="std")
@@ -895,6 +896,9 @@ def plot_error_result(
     dims = [AXES.index(c) for c in plot_mode]
     ax = fig.add_axes(box, projection="3d" if plot_mode == "xyz" else None)
     ref, est = ref_xyz[thin(len(ref_xyz), PATH_POINTS)], est_xyz[thin(len(est_xyz), PATH_POINTS)]
+    if len(ref_xyz) == len(t_s):  # the truth at each pair (APE): broken where the pairs are
+        pick = thin(len(ref_xyz), PATH_POINTS)
+        ref = np.column_stack(break_at_gaps(t_s[pick], *ref_xyz[pick].T)[1:])
     ax.plot(*(ref[:, d] for d in dims), "--", color="0.5", lw=1.0, label="reference")
     norm = Normalize(float(np.min(errors)) if len(errors) else 0.0, float(np.max(errors)) if len(errors) else 1.0)
     pick = thin(len(error_xyz), SCATTER_POINTS)
