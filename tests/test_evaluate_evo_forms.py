@@ -197,6 +197,20 @@ def test_a_kitti_times_file_given_as_a_trajectory_says_what_it_is(files, tmp_pat
     assert "evaluation.truth_times" in res.stderr and len(res.stderr.splitlines()) == 1
 
 
+def test_a_kitti_plot_s_x_axis_is_the_pose_index_not_seconds(files, tmp_path, drawn_figures):
+    """evo's KITTI 00 files (no stamps, paired by index) with `-p` (round 24): the error was drawn over the pose
+    index 0-4540 under the label "t [s]"; a stamped pair keeps its seconds."""
+    res = invoke(
+        "evaluate", "kitti", files / "truth.kitti", files / "est.kitti", "-a", "--save_plot", tmp_path / "k.png"
+    )
+    assert res.exit_code == 0, res.output
+    res = invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-a", "--save_plot", tmp_path / "t.png")
+    assert res.exit_code == 0, res.output
+    kitti, tum = drawn_figures
+    assert kitti.axes[0].get_xlabel() == "index (poses without stamps, paired by index)"
+    assert tum.axes[0].get_xlabel() == "t [s]"
+
+
 def test_a_wrong_positional_form_is_one_usage_line():
     res = invoke("evaluate", "euroc", "a", "b", "c")
     assert res.exit_code == 2 and "LOG TOPIC TOPIC" in res.stderr

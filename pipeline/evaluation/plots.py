@@ -871,11 +871,13 @@ def plot_error_result(
     title: str = "",
     label: str = "error",
     aligned: bool = True,
+    x_label: str = "t [s]",
 ) -> Path:
     """What evo_ape / evo_rpe ``-p`` shows, in one PNG: the error over time with its mean, median and RMSE and the
     ±std band, and the reference (dashed grey) with the estimate (``aligned`` or not, as its legend says)
     coloured by the error at ``error_xyz`` (the estimate positions each error belongs to) in ``plot_mode`` (evo's:
-    two axes such as ``xy``, or ``xyz`` for a 3D view)."""
+    two axes such as ``xy``, or ``xyz`` for a 3D view). ``x_label`` names what ``t_s`` is (poses without stamps,
+    paired by index, give their index)."""
     from matplotlib.colors import Normalize
 
     fig, axes = _figure(2, 1, (9.0, 11.0), gap=0.8)
@@ -886,7 +888,7 @@ def plot_error_result(
     for key, colour in (("rmse", "tab:blue"), ("median", "tab:green"), ("mean", "tab:red")):
         raw.axhline(stats[key], color=colour, lw=1.2, label=key)
     raw.axhspan(stats["mean"] - stats["std"], stats["mean"] + stats["std"], color="tab:olive", alpha=0.3, label="std")
-    raw.set_xlabel("t [s]")
+    raw.set_xlabel(x_label)
     raw.set_ylabel(label)
     raw.set_title(title)
     raw.grid(True, alpha=0.3)
