@@ -312,9 +312,12 @@ def _save_plot(path: Path, result, plot_mode: str) -> None:
     from slamobs.pipeline.writers import atomic_file, kept_unless
 
     errors = np.asarray(result.errors, dtype=np.float64)
-    t_s = np.asarray(result.arrays.get("seconds_from_start", np.arange(len(errors))), dtype=np.float64)
-    if len(t_s) != len(errors):
-        t_s = np.arange(len(errors), dtype=np.float64)
+    t_s = np.asarray(result.arrays.get("seconds_from_start", ()), dtype=np.float64)
+    x_label = "t [s]"
+    if len(t_s) != len(errors):  # poses without stamps (KITTI), paired by index: the x axis is no time
+        t_s, x_label = np.arange(len(errors), dtype=np.float64), "index"
+        if "seconds_from_start" not in result.arrays:
+            x_label = "index (poses without stamps, paired by index)"
     est = np.asarray(result.est_pos_aligned, dtype=np.float64)
     at = est if result.pair_i is None else est[np.asarray(result.pair_i)]
     why_kept = kept_unless(
@@ -334,6 +337,7 @@ def _save_plot(path: Path, result, plot_mode: str) -> None:
             title=result.title,
             label=result.label,
             aligned=result.alignment.kind != "none",
+            x_label=x_label,
         )
 
 

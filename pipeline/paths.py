@@ -221,7 +221,8 @@ def check_output(
     is: publishing replaces exactly that, or nothing.
 
     ``inputs`` are every path the run reads (log, config, msg directory, truth file); ``None`` entries are
-    skipped. Without ``force`` an existing non-empty output is an error as well. ``in_place``: the command adds
+    skipped. Without ``force`` an existing non-empty output is an error as well (one holding a file slamobs did
+    not write is refused for that, the reason ``force`` would meet). ``in_place``: the command adds
     to its own earlier output there (a tune resumed), replacing nothing, so its contents are not examined.
 
     Raises:
@@ -259,15 +260,15 @@ def check_output(
     seen = identity(out)
     if not entries or in_place:
         return seen
-    if not force:
-        raise OutputError(out, "output exists (use --force to replace it)")
-    found = foreign_entry(out)
+    found = foreign_entry(out)  # refused with or without --force: never suggest the option that would not help
     if found is not None:
         raise OutputError(
             out,
             f"is not a slamobs output: {os.path.join(out, found[0])} is {found[1]}; --force "
             "replaces only what slamobs wrote: move it away yourself or choose another -o",
         )
+    if not force:
+        raise OutputError(out, "output exists (use --force to replace it)")
     return seen
 
 

@@ -164,6 +164,53 @@ def test_save_results_and_plots(files, tmp_path, monkeypatch):
     assert res.exit_code == 2 and (tmp_path / "notes.png").read_text() == "mine"
 
 
+def test_an_evo_result_archive_given_as_a_log_or_a_trajectory_says_what_it_holds(files, tmp_path, monkeypatch):
+    """evo's `res_files/orb_ape.zip` (round 24): `info` said "zip-compressed: decompress it first", which gives no
+    log, and `evaluate` "unknown trajectory format"; both now say it is an evo result archive, of which pair, its
+    rmse, and what reads it. Another zip still says to decompress it."""
+    monkeypatch.chdir(tmp_path)
+    res = invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-a", "-q", "--save_results", "res.zip")
+    assert res.exit_code == 0, res.output
+    rmse = json.loads(invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-a", "--json").stdout)
+    said = f"an evo result archive: APE w.r.t. translation part (m) of {files / 'est.txt'} against "
+    for args in (("info", "res.zip"), ("evaluate", files / "truth.txt", "res.zip"), ("run", "res.zip", "-o", "o")):
+        res = invoke(*args)
+        assert res.exit_code == 2 and said in res.stderr, res.stderr
+        assert f"rmse {rmse['stats']['rmse']:.6g}; it holds an evaluation's errors" in res.stderr
+        assert "decompress" not in res.stderr and len(res.stderr.splitlines()) == 1
+    import zipfile
+
+    with zipfile.ZipFile("other.zip", "w") as archive:
+        archive.writestr("notes.txt", "x")
+    res = invoke("info", "other.zip")
+    assert res.exit_code == 2 and "zip-compressed: decompress it first" in res.stderr
+
+
+def test_a_kitti_times_file_given_as_a_trajectory_says_what_it_is(files, tmp_path):
+    """evo's `KITTI_00_gt_times.txt` beside `KITTI_00_gt.txt` (round 24): `evaluate GT TIMES` said "unknown
+    trajectory format"; a file of one number a line is named as KITTI's times.txt, with how KITTI poses pair and
+    where a run takes such stamps."""
+    times = tmp_path / "times.txt"
+    np.savetxt(times, np.arange(200) * 0.1, fmt="%.6e")
+    res = invoke("evaluate", files / "truth.kitti", times)
+    assert res.exit_code == 2 and "one number a line: KITTI's times.txt, not poses?" in res.stderr, res.stderr
+    assert "evaluation.truth_times" in res.stderr and len(res.stderr.splitlines()) == 1
+
+
+def test_a_kitti_plot_s_x_axis_is_the_pose_index_not_seconds(files, tmp_path, drawn_figures):
+    """evo's KITTI 00 files (no stamps, paired by index) with `-p` (round 24): the error was drawn over the pose
+    index 0-4540 under the label "t [s]"; a stamped pair keeps its seconds."""
+    res = invoke(
+        "evaluate", "kitti", files / "truth.kitti", files / "est.kitti", "-a", "--save_plot", tmp_path / "k.png"
+    )
+    assert res.exit_code == 0, res.output
+    res = invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-a", "--save_plot", tmp_path / "t.png")
+    assert res.exit_code == 0, res.output
+    kitti, tum = drawn_figures
+    assert kitti.axes[0].get_xlabel() == "index (poses without stamps, paired by index)"
+    assert tum.axes[0].get_xlabel() == "t [s]"
+
+
 def test_a_wrong_positional_form_is_one_usage_line():
     res = invoke("evaluate", "euroc", "a", "b", "c")
     assert res.exit_code == 2 and "LOG TOPIC TOPIC" in res.stderr

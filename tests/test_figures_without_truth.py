@@ -362,6 +362,27 @@ def test_the_3d_view_is_drawn_to_one_scale_and_says_when_its_height_is_stretched
     plt.close("all")
 
 
+def test_a_path_at_one_height_is_said_level_not_stretched_by_a_billion():
+    """evo's tf_example (odom -> base_footprint, planar) with `evaluate ... -p`: z is 0 everywhere and the title
+    said "z stretched 7.11e+08x" (the height's floor of 1e-9 m). A path whose height varies by less than the
+    step lengths are written at has no height to stretch: " (z constant)"; a path 1 mm high is still stretched."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slamobs.pipeline.evaluation.plots import MIN_Z_SHARE, one_scale_3d
+
+    s = np.linspace(0.0, 1.0, 200)
+    flat = np.column_stack([1.2 * s, -3.0 * s, np.zeros_like(s)])
+    ax = plt.figure().add_subplot(projection="3d")
+    assert one_scale_3d(ax, flat) == " (z constant)"
+    assert one_scale_3d(ax, flat + [0.0, 0.0, 5.0]) == " (z constant)"
+    low = flat + np.column_stack([0 * s, 0 * s, 0.001 * s])
+    assert one_scale_3d(ax, low) == f" (z stretched {MIN_Z_SHARE * 3.0 / 0.001:.3g}x)"
+    plt.close("all")
+
+
 def test_the_3d_view_s_short_side_gets_fewer_ticks():
     """TagSLAM test 11's trajectory: 18 m in x, 5 m in y, 16 m in z; drawn to one scale the y side is short, and its
     six tick labels (-4 to 1) drew over one another. A side gets tick intervals in proportion to its length."""
@@ -461,6 +482,57 @@ def test_a_bias_figure_s_y_labels_stay_inside_the_figure(drawn_figures):
         assert box.x0 >= 0.0 and ax.yaxis.label.get_window_extent(renderer).x0 >= 0.0, ax.get_ylabel()
     assert plain.subplotpars.left == pytest.approx(0.85 / 10.0)  # _figure's margin, not moved
     assert small.subplotpars.left > plain.subplotpars.left
+
+
+def test_an_rpe_plot_s_three_line_title_stays_inside_the_figure(drawn_figures):
+    """`slamobs evaluate --metric rpe -p` (round 24, evo's EuRoC V1_01 OpenVINS files): the title is evo's three
+    lines, "RPE w.r.t. rotation angle in degrees (deg)" / "for delta = 1.0 (m) using consecutive pairs" / "(not
+    aligned)", and the first, the one that says what is plotted, was drawn above the figure's top edge (fixed
+    margins in inches). The grid moves down by what a title reaches past the top; the gap between the rows is
+    kept."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.linspace(0.0, 130.0, 60)
+    xyz = np.column_stack([np.cos(t / 20.0), np.sin(t / 20.0), 0.01 * t])
+    errors = 0.2 + 0.1 * np.sin(t)
+    stats = {"rmse": 0.25, "median": 0.2, "mean": 0.21, "std": 0.07}
+    title = "RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using consecutive pairs\n(not aligned)"
+    plots.plot_error_result(io.BytesIO(), t, errors, stats, xyz, xyz, xyz, title=title, label="RPE (deg)")
+    (fig,) = drawn_figures
+    renderer = fig.canvas.get_renderer()
+    top = fig.get_figheight() * fig.dpi
+    for ax in fig.axes:
+        assert ax.title.get_window_extent(renderer).y1 <= top, ax.get_title()
+    upper, trajectory = fig.axes[:2]  # the error over time; the trajectory panel below it
+    assert upper.get_title() == title
+    assert upper.xaxis.get_tightbbox(renderer).y0 > trajectory.title.get_window_extent(renderer).y1  # no overlap
+
+
+def test_an_evaluate_plot_draws_no_line_across_a_stretch_without_pairs(drawn_figures):
+    """evo's TUM fr2_desk ORB-SLAM estimate (`evaluate tum ... -as -p`, round 24): 719 of its 2893 poses have no
+    truth stamp, and the error over time and the reference path were drawn as straight lines across the 14 s
+    without pairs, errors and a path nobody measured. Both break there (``break_at_gaps``, as the innovation
+    figure does); the pairs' values are drawn as before."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.concatenate([np.arange(0.0, 30.0, 0.1), np.arange(45.0, 100.0, 0.1)])
+    xyz = np.column_stack([np.cos(t / 10.0), np.sin(t / 10.0), np.zeros_like(t)])
+    errors = 0.005 + 0.001 * np.sin(t)
+    stats = {"rmse": 0.006, "median": 0.005, "mean": 0.005, "std": 0.001}
+    plots.plot_error_result(io.BytesIO(), t, errors, stats, xyz, xyz, xyz, plot_mode="xy", label="APE (m)")
+    (fig,) = drawn_figures
+    upper, trajectory = fig.axes[:2]
+    (line,) = [ln for ln in upper.get_lines() if ln.get_label() == "APE (m)"]
+    x, y = (np.asarray(v, dtype=np.float64) for v in line.get_data())
+    gap = np.flatnonzero(np.isnan(y))
+    assert len(gap) == 1 and x[gap[0] - 1] < 30.0 and x[gap[0] + 1] == pytest.approx(45.0)
+    assert np.array_equal(y[np.isfinite(y)], errors)
+    (reference,) = [ln for ln in trajectory.get_lines() if ln.get_label() == "reference"]
+    assert np.isnan(np.asarray(reference.get_xdata(), dtype=np.float64)).sum() == 1
 
 
 def test_the_innovation_median_is_drawn_over_the_percentile_and_maximum(drawn_figures):

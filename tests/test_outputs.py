@@ -123,6 +123,19 @@ def test_atomic_directory_success_failure_and_existing_output(tmp_path):
             pass
 
 
+def test_a_directory_of_the_user_s_files_is_refused_without_suggesting_force(tmp_path):
+    """Without --force an existing directory that holds a file slamobs did not write is refused for that reason:
+    "use --force to replace it" would only lead to the refusal --force meets (round 24, `run -o mine`)."""
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="not a slamobs output") as err:
+        with atomic_directory(mine):
+            pass
+    assert "use --force to replace it" not in str(err.value) and "notes.txt" in str(err.value)
+    assert (mine / "notes.txt").read_text() == "mine"
+
+
 def test_schema_files_are_valid_json_with_units():
     for name in TABLES:
         spec = json.loads((arrow_schema.__globals__["HERE"] / f"{name}.json").read_text())

@@ -20,9 +20,11 @@ the files follow each other in time (:func:`part_notes`: gaps between them, over
 
 from __future__ import annotations
 
+import json
 import re
 import stat
 import tempfile
+import zipfile
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path, PurePath
@@ -97,12 +99,13 @@ LABELS: dict[str, str] = {
     "ros2-partial": "rosbag2 directory with missing files",
 } | {f.kind: f.label for f in FORMATS}
 
+_ZIP_MAGIC = b"PK\x03\x04"
 _WRAPPERS: tuple[tuple[bytes, str], ...] = (
     (b"BZh", "bzip2"),
     (b"\x1f\x8b", "gzip"),
     (b"\x28\xb5\x2f\xfd", "zstd"),
     (b"\xfd7zXZ\x00", "xz"),
-    (b"PK\x03\x04", "zip"),
+    (_ZIP_MAGIC, "zip"),
 )
 _NOT_A_LOG = "not a ROS1 bag, rosbag2 directory or MCAP file"
 
@@ -196,6 +199,8 @@ def detect_container(path: str | Path) -> Container:
             return Container(path, fmt.kind, note=_part_alone(path))
     if not head:
         raise InputError(path, f"{_NOT_A_LOG} (empty file)")
+    if head.startswith(_ZIP_MAGIC) and (said := evo_result_hint(path)):
+        raise InputError(path, _NOT_A_LOG + said)
     for magic, name in _WRAPPERS:
         if head.startswith(magic):
             raise InputError(path, f"{_NOT_A_LOG} ({name}-compressed: decompress it first)")
@@ -293,6 +298,30 @@ def _other_data(path: Path) -> str:
             "the run's truth)"
         )
     return ""
+
+
+def evo_result_hint(path: Path) -> str:
+    """`` (an evo result archive ...)``: what ``path`` holds and what reads it, when it is a zip with evo's
+    ``stats.json`` (``evo_ape``/``evo_rpe --save_results`` and ``slamobs evaluate --save_results`` write one);
+    "" for any other file. Decompressing it gives no log nor trajectory: it holds an evaluation's errors."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = set(archive.namelist())
+            if "stats.json" not in names:
+                return ""
+            info = json.loads(archive.read("info.json")) if "info.json" in names else {}
+            stats = json.loads(archive.read("stats.json"))
+    except (OSError, zipfile.BadZipFile, ValueError, KeyError):
+        return ""
+    info = info if isinstance(info, dict) else {}
+    title = str(info.get("title") or "errors").splitlines()[0]
+    pair = f" of {info['est_name']} against {info['ref_name']}" if info.get("est_name") and info.get("ref_name") else ""
+    rmse = stats.get("rmse") if isinstance(stats, dict) else None
+    level = f", rmse {rmse:.6g}" if isinstance(rmse, (int, float)) else ""
+    return (
+        f" (an evo result archive: {title}{pair}{level}; it holds an evaluation's errors, not poses: evo_res reads "
+        "it, and `slamobs evaluate TRUTH EST` computes them from the two trajectories)"
+    )
 
 
 def _storage_parts(files: Sequence[Path]) -> tuple[Path, ...]:

@@ -21,7 +21,7 @@ from slamobs.pipeline.errors import InputError, one_line, resource_error
 from slamobs.pipeline.paths import check_input, read_bytes, read_text
 from slamobs.pipeline.streams import PoseStream
 
-from .container import detect_container, open_log
+from .container import detect_container, evo_result_hint, open_log
 from .decode import decode_rows, pose_stream
 from .roles import EDGE_ARROW, TRUTH_FORMS, did_you_mean, parse_edge, topics_of
 from .rows import LAYOUTS
@@ -491,7 +491,16 @@ def detect_format(path: str | Path) -> str:
             return "tum"
         if len(tok) == 12:
             return "kitti"
+        if len(tok) == 1 and re.fullmatch(r"[+-]?[\d.]+(?:[eE][+-]?\d+)?", tok[0]):
+            raise InputError(
+                path,
+                "one number a line: KITTI's times.txt, not poses? KITTI pose files are paired by index "
+                "(`slamobs evaluate kitti GT.txt EST.txt`); a run takes such stamps for a KITTI truth as "
+                "evaluation.truth_times",
+            )
         break
+    if said := evo_result_hint(path):  # a zip without evo's stats.json gets ""
+        raise InputError(path, "not a trajectory" + said)
     raise InputError(
         path,
         "unknown trajectory format (expected TUM, EuRoC CSV, KITTI or poses.parquet; a log needs a topic: LOG:TOPIC)",
