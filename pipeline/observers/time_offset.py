@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 from numba import types
 
+from slamobs.pipeline.alignment import MEAN_STAMPS
 from slamobs.pipeline.blocks import id_time_order
 from slamobs.pipeline.cholesky import cholesky_lower
 from slamobs.pipeline.cores import cores, lower_this_thread
@@ -502,7 +503,13 @@ def sampling_record(stream) -> dict:
         why += ": " + read.get("restamped", "") + ", each then the motion at its stamp"
     else:
         why += ": each velocity sample taken as the motion at its stamp"
-    return {"model": "mean" if interval_means(stream) else "instant", "why": why, **({"read": read} if read else {})}
+    stamps = {"stamps": MEAN_STAMPS["interpolates"]} if interval_means(stream) else {}  # the observers': _started
+    return {
+        "model": "mean" if interval_means(stream) else "instant",
+        "why": why,
+        **stamps,
+        **({"read": read} if read else {}),
+    }
 
 
 #: How ``why_not_applied`` begins where only the halves' check held an offset back (:func:`unapplied_note`).
