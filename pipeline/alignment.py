@@ -2369,6 +2369,7 @@ def subset(aligned: AlignedStream, rows: slice | np.ndarray, frames: slice | np.
         det_rows = np.arange(det_offsets[-1], dtype=np.int64) - np.repeat(det_offsets[:-1] - off[frames], counts)
     cut = dict(
         vel_t_ns=aligned.vel_t_ns[rows],
+        vel_start_ns=None if aligned.vel_start_ns is None else aligned.vel_start_ns[rows],
         omega=aligned.omega[rows],
         velocity=aligned.velocity[rows],
         directions=d,
