@@ -503,10 +503,11 @@ def held_stamps(stream: AlignedStream) -> AlignedStream:
     interval means (``vel_start_ns``) stamped at its intervals' starts, each then held over exactly the interval it
     averages (as an integrating odometry's own dead reckoning holds it); held from the midpoints instead, each would
     run half an interval late. The stream itself where the samples are not interval means. The origin ``t0_ns``
-    stays (the first sample's seconds are then below zero)."""
+    stays (the first sample's seconds are then below zero); ``vel_start_ns`` goes (the stamps are those starts now:
+    a second call changes nothing, and a cut of the samples has nothing beside them to cut)."""
     if stream.vel_start_ns is None:
         return stream
-    return replace(stream, vel_t_ns=stream.vel_start_ns)
+    return replace(stream, vel_t_ns=stream.vel_start_ns, vel_start_ns=None)
 
 
 def _interval_starts(to_start: np.ndarray, t: np.ndarray, t_om: np.ndarray) -> np.ndarray:

@@ -189,9 +189,9 @@ def _odometry_log(tmp_path, sampling: str, early: float = 0.0):
 def test_a_4_hz_odometry_twist_of_interval_means_is_restamped_to_its_midpoints(tmp_path, early, applied):
     # the odometry's twist is both velocities (as TagSLAM test_22's) and each sample the mean over the interval before
     # its stamp, which is the motion at the interval's midpoint: stamped half an interval late. Read as means against
-    # its own poses, the reader restamps both velocities to the midpoints, and the search decides as on the
-    # instantaneous twin (main's HEAD: +0.249 s applied on time; h-meanoffset: the search's zero moved to a whole
-    # interval, every estimator but the search still reading the samples late). 0.1 s early is still applied
+    # its own poses, the reader restamps both velocities to the midpoints (riekf's and batch's stamps), and the
+    # search, which holds each sample until the next, takes each at its interval's start (h-meanoffset: +0.249 s
+    # read and held back on time; h-meanoffset2: the midpoints, the twin's reading). 0.1 s early is still applied
     from slamobs.pipeline.readers import read_log
 
     twin_stream = align(read_log(_odometry_log(tmp_path, "instant", early)[1], {"angular_velocity": "/odom"}))
@@ -203,11 +203,15 @@ def test_a_4_hz_odometry_twist_of_interval_means_is_restamped_to_its_midpoints(t
         assert np.array_equal(got, sim.odom.t_ns - 125_000_000)  # 4 Hz: half of 0.25 s, the first by the median
     stream = align(streams)
     offset = time_offset.decide(stream)
-    assert abs(time_offset.hold_lag(stream) - 0.125) < 0.005
+    assert time_offset.hold_lag(stream) == 0.0  # the search holds each mean from its interval's start (h-midstamp)
+    assert abs(time_offset.hold_lag(twin_stream) - 0.125) < 0.005
     assert offset["sampling"]["model"] == "mean", offset["sampling"]
     assert "restamped to interval midpoints" in offset["sampling"]["why"], offset["sampling"]
     assert offset["applied"] == twin["applied"] == applied, (offset, twin)
-    assert abs(offset["estimate_s"] - twin["estimate_s"]) < 0.01, (offset, twin)  # as the twin: offset + half interval
+    # the twin's search reads the offset plus its half-interval lag (+0.124 s on time, +0.226 s 0.1 s early); holding
+    # each mean over exactly the interval it averages, this one reads the offset itself, closer (h-midstamp; at
+    # b332a8a4 it read as the twin: fails)
+    assert abs(offset["estimate_s"] - early) < 0.5 * abs(twin["estimate_s"] - early), (offset, twin)
     assert offset["sampling"]["stamps"] == "interval midpoints", offset["sampling"]  # riekf's and batch's
     # an estimator that holds each sample until the next takes each at its interval's start: 0.25 s before its stamp
     # as recorded (the previous sample's stamp), the first by the median interval (h-midstamp)
