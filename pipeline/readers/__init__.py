@@ -324,9 +324,9 @@ def _midpoints(read: dict, angular: Vec3Stream, linear: Vec3Stream) -> tuple[Vec
     """An odometry twist read as interval means, both velocities restamped to the midpoints of their intervals
     (:func:`.odometry.midpoint_restamped`), which ``read`` (``LogStreams.twist_sampling``) records, and per sample
     the nanoseconds from its midpoint back to its interval's start (``LogStreams.twist_to_start_ns``; None for a
-    single sample): an estimator that takes the twist linear between samples and the detection offset search take
-    each sample at its midpoint, one that holds each sample until the next at its interval's start
-    (``alignment.held_stamps``)."""
+    single sample): an estimator that takes the twist linear between samples (riekf, batch) takes each sample at its
+    midpoint, one that holds each sample until the next (the observers, the detection offset search) at its
+    interval's start (``alignment.held_stamps``)."""
     from .odometry import RESTAMPED, interval_spans, midpoint_restamped  # lazy, as :func:`_odometry_twist`
 
     read["restamped"] = RESTAMPED
