@@ -432,6 +432,10 @@ class AlignedStream:
     #: What each sample of the velocities is, where the log tells (``LogStreams.twist_sampling``), else None: interval
     #: means were restamped to their midpoints by the reader; ``time_offset.sampling_record`` says so.
     twist_sampling: dict | None = None
+    #: Where those means were restamped to their midpoints (``LogStreams.twist_to_start_ns``): each sample's
+    #: interval's start (int64 ns, as ``vel_t_ns``), the stamp an estimator that holds each sample until the next
+    #: takes it at (:func:`held_stamps`); None otherwise.
+    vel_start_ns: np.ndarray | None = None
     #: The linear velocity's gaps when it has a topic of its own (:func:`_measured_gaps`; none when it shares the
     #: time base's topic, whose gaps are the time base's own intervals): ``(G, 2)`` int64 ns, its samples before
     #: and after each gap, across which the time base's samples got it interpolated; ``velocity_period_ns`` its
@@ -485,6 +489,34 @@ class AlignedStream:
     @property
     def det_ids(self) -> np.ndarray:
         return self.landmark_ids[self.det_idx]
+
+
+#: The stamps an estimator takes a twist of interval means at (run.json ``observer.time_offset.sampling.stamps``),
+#: by how it integrates: one that takes the twist linear between samples (riekf, batch) each interval's midpoint, where
+#: the mean is the motion to second order; one that holds each sample until the next (the observers) each interval's
+#: start, so the hold covers exactly the interval the sample averages (:func:`held_stamps`).
+MEAN_STAMPS = {"interpolates": "interval midpoints", "holds": "interval starts"}
+
+
+def held_stamps(stream: AlignedStream) -> AlignedStream:
+    """The stream as an estimator that holds each velocity sample until the next should integrate it: a twist of
+    interval means (``vel_start_ns``) stamped at its intervals' starts, each then held over exactly the interval it
+    averages (as an integrating odometry's own dead reckoning holds it); held from the midpoints instead, each would
+    run half an interval late. The stream itself where the samples are not interval means. The origin ``t0_ns``
+    stays (the first sample's seconds are then below zero); ``vel_start_ns`` goes (the stamps are those starts now:
+    a second call changes nothing, and a cut of the samples has nothing beside them to cut)."""
+    if stream.vel_start_ns is None:
+        return stream
+    return replace(stream, vel_t_ns=stream.vel_start_ns, vel_start_ns=None)
+
+
+def _interval_starts(to_start: np.ndarray, t: np.ndarray, t_om: np.ndarray) -> np.ndarray:
+    """Each time-base sample's interval start (``AlignedStream.vel_start_ns``): its stamp less ``to_start`` of the
+    sample it is among the angular velocity's (stamps ``t``, as read; the time base keeps some of them, in time order,
+    the last of equal stamps)."""
+    order = np.argsort(t, kind="stable")
+    k = order[np.searchsorted(t[order], t_om, side="right") - 1]
+    return t_om - to_start[k]
 
 
 #: What the checks' warnings call each stream, and the key of its topic in ``AlignedStream.topics``.
@@ -1197,6 +1229,9 @@ def align(
     t_om, omega, velocity, (lo, hi), starts, lv_gaps = _velocities(
         streams.path, om, lv, frame, lim, streams.missing_spans
     )
+    vel_start = None
+    if streams.twist_to_start_ns is not None and om.topic == lv.topic:
+        vel_start = _interval_starts(streams.twist_to_start_ns, _times(om, frame.time_source), t_om)
     gyro_turn = None
     if twist is not None and twist.topic != om.topic:
         gyro_turn = _odometry_twist_checks(frame, warn, twist, om, lv, t_om, omega)
@@ -1261,6 +1296,7 @@ def align(
         gyro_turn=gyro_turn,
         gyro_moved_s=gyro_moved_s,
         twist_sampling=streams.twist_sampling,
+        vel_start_ns=vel_start,
         velocity_gaps=lv_gaps[0],
         velocity_period_ns=lv_gaps[1],
         bridged_gaps=lv_gaps[2],
@@ -2334,6 +2370,7 @@ def subset(aligned: AlignedStream, rows: slice | np.ndarray, frames: slice | np.
         det_rows = np.arange(det_offsets[-1], dtype=np.int64) - np.repeat(det_offsets[:-1] - off[frames], counts)
     cut = dict(
         vel_t_ns=aligned.vel_t_ns[rows],
+        vel_start_ns=None if aligned.vel_start_ns is None else aligned.vel_start_ns[rows],
         omega=aligned.omega[rows],
         velocity=aligned.velocity[rows],
         directions=d,

@@ -162,6 +162,10 @@ class LogStreams:
     #: twist (:func:`.readers.odometry.twist_sampling`), else None; read as interval means, both velocities were
     #: restamped to their intervals' midpoints (:func:`.readers.odometry.midpoint_restamped`, ``restamped``).
     twist_sampling: dict | None = None
+    #: Where they were so restamped: per sample of the angular velocity, the nanoseconds from its new stamp back to
+    #: the start of the interval it averages (:func:`.readers.odometry.interval_spans`), which the alignment turns
+    #: into ``AlignedStream.vel_start_ns``; else None.
+    twist_to_start_ns: np.ndarray | None = None
     #: What the log says about reading it (a simulated log's ``tag_size`` and ``tag_family``): used where the
     #: config leaves them unset.
     recorded: dict[str, object] = field(default_factory=dict)

@@ -28,7 +28,7 @@ from typing import Callable
 
 import numpy as np
 
-from slamobs.pipeline.alignment import AlignedStream, relabelled, stream_topics
+from slamobs.pipeline.alignment import MEAN_STAMPS, AlignedStream, held_stamps, relabelled, stream_topics
 from slamobs.pipeline.blocks import id_time_order, row_norms3, row_squares3
 from slamobs.pipeline.errors import BadInput, GainError
 from slamobs.pipeline.noise import chi2_quantile
@@ -1043,6 +1043,10 @@ class ObserverSpec:
     #: Whether it estimates the detections' time offset itself (the reference estimators: riekf beside its filter,
     #: batch before its seeds); the others start on the stamps :func:`.time_offset.decide` moves (:meth:`_started`).
     own_time_offset: bool = False
+    #: Whether it takes the twist linear between samples (riekf and batch: ``shared_steps.twist_at``) rather than
+    #: holding each sample until the next (the observers' integrators): which stamps a twist of interval means
+    #: takes (``alignment.MEAN_STAMPS``, :meth:`_started`).
+    interpolates: bool = False
 
     def directions_needed(self, config) -> int:
         """Inertial directions a run of this estimator with ``config`` needs (checking the config first)."""
@@ -1078,13 +1082,20 @@ class ObserverSpec:
         detection stamps moved by it where :func:`.time_offset.decide` finds it reliable (the reference estimators'
         rule; its record is run.json ``observer.time_offset``, its note the run's). Decided before the observer
         starts, unless ``options.time_offset`` holds the decision on this stream already: bounded by the search's
-        pairs (0.06 CPU s on the one-hour log; docs/benchmarks.md, session 33)."""
+        pairs (0.06 CPU s on the one-hour log; docs/benchmarks.md, session 33). The search decides on the stream's
+        own stamps; an estimator that holds each velocity sample (not :attr:`interpolates`) then integrates a twist
+        of interval means from its intervals' starts (:func:`.alignment.held_stamps`), which its record's
+        ``sampling.stamps`` says."""
         if self.own_time_offset:
-            return self.start(stream, gains, options)
+            return self.start(stream if self.interpolates else held_stamps(stream), gains, options)
         from slamobs.pipeline.observers import time_offset
 
         offset = time_offset.decide(stream) if options.time_offset is None else options.time_offset
-        stepper = self.start(time_offset.shifted(stream, offset), gains, options)
+        shifted = time_offset.shifted(stream, offset)
+        if not self.interpolates and stream.vel_start_ns is not None:
+            shifted = held_stamps(shifted)
+            offset = {**offset, "sampling": {**offset["sampling"], "stamps": MEAN_STAMPS["holds"]}}
+        stepper = self.start(shifted, gains, options)
         said = time_offset.note(self.name, offset)
         stepper.time_offset_said = (offset, said)
         return stepper

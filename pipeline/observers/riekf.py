@@ -3027,4 +3027,5 @@ SPEC = ObserverSpec(
     takes_known_map=False,
     uses_noise=True,
     own_time_offset=True,
+    interpolates=True,
 )

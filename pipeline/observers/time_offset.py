@@ -33,6 +33,7 @@ from dataclasses import replace
 import numpy as np
 from numba import types
 
+from slamobs.pipeline.alignment import MEAN_STAMPS, held_stamps
 from slamobs.pipeline.blocks import id_time_order
 from slamobs.pipeline.cholesky import cholesky_lower
 from slamobs.pipeline.cores import cores, lower_this_thread
@@ -465,9 +466,11 @@ def hold_lag(stream) -> float:
     lags a changing motion by half an interval: on a clean log with no offset it finds that lag as one (a generated
     figure 8 at 10 / 20 / 4.26 Hz: +0.051 / +0.023-0.026 / +0.119 s), so a positive shift no larger is not told
     from it (issue 23). A shift of the other sign is the lag's opposite: a true offset read short by it (10 Hz,
-    detections 0.1-0.3 s late: -0.049 / -0.148 / -0.247 s). Samples read as interval means were restamped to their
-    intervals' midpoints by the reader (:func:`interval_means`), so the same half interval holds for them.
-    Public: tests/test_robust_reference.py checks it."""
+    detections 0.1-0.3 s late: -0.049 / -0.148 / -0.247 s). Samples read as interval means (:func:`interval_means`)
+    the search holds from their intervals' starts (``alignment.held_stamps``), each over exactly the interval it
+    averages: no lag. Public: tests/test_robust_reference.py checks it."""
+    if interval_means(stream):
+        return 0.0
     t = stream.vel_t_ns
     return 0.5e-9 * float(np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
 
@@ -495,14 +498,22 @@ _SAMPLING_WHY = {
 def sampling_record(stream) -> dict:
     """The record's ``sampling``: what each velocity sample was read as (``mean`` or ``instant``) and why, with the
     odometry's reading where there is one (:func:`interval_means`); means were restamped to their intervals'
-    midpoints, so the search's lag is half an interval either way (:func:`hold_lag`)."""
+    midpoints (``stamps``: riekf's and batch's; the observers' their starts, ``observers.base``), and the search holds
+    each from its interval's start, so it has no lag (:func:`hold_lag`)."""
     read = getattr(stream, "twist_sampling", None)
     why = _SAMPLING_WHY[read["model"] if read else ""]
     if interval_means(stream):
-        why += ": " + read.get("restamped", "") + ", each then the motion at its stamp"
+        why += ": " + read.get("restamped", "") + ", each then the motion at its stamp; the search holds each from its"
+        why += " interval's start, over the interval it averages"
     else:
         why += ": each velocity sample taken as the motion at its stamp"
-    return {"model": "mean" if interval_means(stream) else "instant", "why": why, **({"read": read} if read else {})}
+    stamps = {"stamps": MEAN_STAMPS["interpolates"]} if interval_means(stream) else {}  # the observers': _started
+    return {
+        "model": "mean" if interval_means(stream) else "instant",
+        "why": why,
+        **stamps,
+        **({"read": read} if read else {}),
+    }
 
 
 #: How ``why_not_applied`` begins where only the halves' check held an offset back (:func:`unapplied_note`).
@@ -1236,7 +1247,7 @@ def decide(stream) -> dict:
     from ``BLOCKS`` stretches)."""
     if not stream.det_idx.shape[0] or stream.vel_t_ns.shape[0] < 2:  # nothing to pair or to dead-reckon
         return {**_record(stream, 0), "why_not_applied": _too_few(stream, 0)}
-    c = Consistency(stream, np.zeros(6))
+    c = Consistency(held_stamps(stream), np.zeros(6))  # the search holds each sample: means from their starts
     out = _record(stream, int(c.a.shape[0]))
     if (why := _too_few(stream, out["pairs"])) is not None:
         return {**out, "why_not_applied": why}
@@ -1249,7 +1260,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     ``decided``, when given, is called with ``{"applied", "estimate_s"}`` as soon as they are known, before the
     checks that only report (``gyro_misreads``, ``velocity_scale``), so that a caller waiting for whether the offset
     is applied (:class:`Background`) need not wait for those."""
-    c = Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
+    c = Consistency(held_stamps(stream), np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
     out = _record(stream, int(c.a.shape[0]))
     if (why := _too_few(stream, out["pairs"])) is not None:
         return {**out, "why_not_applied": why}

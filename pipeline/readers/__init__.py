@@ -303,7 +303,9 @@ def _velocity_checks(role, topic, built, selection, table, rows, streams, note, 
             read = streams.odometry_poses.get(role)  # the poses at this twist's stamps, where every one has one
             streams.twist_sampling = _sampling_read(read[0], gyro, stream) if read else None
             if streams.twist_sampling and streams.twist_sampling["model"] == "mean":
-                streams.angular_velocity, stream = _midpoints(streams.twist_sampling, gyro, stream)
+                streams.angular_velocity, stream, streams.twist_to_start_ns = _midpoints(
+                    streams.twist_sampling, gyro, stream
+                )
         return stream, cleaning
     if role == "angular_velocity" and "angular_velocity" not in overrides:
         return _filled_gyro(topic, stream, cleaning, selection, table, rows, streams, note)
@@ -318,14 +320,19 @@ def _sampling_read(poses: PoseStream, angular: Vec3Stream, linear: Vec3Stream) -
     return twist_sampling(poses, angular, linear)
 
 
-def _midpoints(read: dict, angular: Vec3Stream, linear: Vec3Stream) -> tuple[Vec3Stream, Vec3Stream]:
+def _midpoints(read: dict, angular: Vec3Stream, linear: Vec3Stream) -> tuple[Vec3Stream, Vec3Stream, np.ndarray | None]:
     """An odometry twist read as interval means, both velocities restamped to the midpoints of their intervals
-    (:func:`.odometry.midpoint_restamped`), which ``read`` (``LogStreams.twist_sampling``) records: every estimator
-    and the detection offset search then take each sample as the motion at its stamp."""
-    from .odometry import RESTAMPED, midpoint_restamped  # lazy, as :func:`_odometry_twist`
+    (:func:`.odometry.midpoint_restamped`), which ``read`` (``LogStreams.twist_sampling``) records, and per sample
+    the nanoseconds from its midpoint back to its interval's start (``LogStreams.twist_to_start_ns``; None for a
+    single sample): an estimator that takes the twist linear between samples (riekf, batch) takes each sample at its
+    midpoint, one that holds each sample until the next (the observers, the detection offset search) at its
+    interval's start (``alignment.held_stamps``)."""
+    from .odometry import RESTAMPED, interval_spans, midpoint_restamped  # lazy, as :func:`_odometry_twist`
 
     read["restamped"] = RESTAMPED
-    return midpoint_restamped(angular), midpoint_restamped(linear)
+    span = interval_spans(angular) if len(angular) > 1 else None
+    to_start = None if span is None else span - span // 2
+    return midpoint_restamped(angular), midpoint_restamped(linear), to_start
 
 
 def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, table, rows, streams, note):

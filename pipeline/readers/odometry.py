@@ -180,14 +180,22 @@ def twist_sampling(poses: PoseStream, angular: Vec3Stream, linear: Vec3Stream) -
 RESTAMPED = "restamped to interval midpoints"
 
 
-def midpoint_restamped(stream: Vec3Stream) -> Vec3Stream:
-    """A twist of interval means (:func:`twist_sampling` reads ``mean``) restamped to the midpoint of the interval
-    each sample covers, ``t_k − (t_k − t_{k−1})/2``, where it is the motion to second order: every consumer then takes
-    it as the motion at its stamp. The first sample, and one after a gap (an interval over ``SAMPLING_GAP`` median
-    intervals: a dropped message, not a longer mean), go back by half the median interval. Both clocks move alike."""
-    if len(stream) < 2:
-        return stream
+def interval_spans(stream: Vec3Stream) -> np.ndarray:
+    """The interval (ns) each sample of a twist of interval means averages, ending at its stamp: the time since the
+    sample before; the first sample's, and one's after a gap (an interval over ``SAMPLING_GAP`` median intervals: a
+    dropped message, not a longer mean), the median interval. At least 2 samples."""
     dt = np.diff(stream.t_ns)
     med = int(np.median(dt))
-    back = np.concatenate([[med], np.where(dt > SAMPLING_GAP * med, med, dt)]) // 2
+    return np.concatenate([[med], np.where(dt > SAMPLING_GAP * med, med, dt)])
+
+
+def midpoint_restamped(stream: Vec3Stream) -> Vec3Stream:
+    """A twist of interval means (:func:`twist_sampling` reads ``mean``) restamped to the midpoint of the interval
+    each sample covers (:func:`interval_spans`), ``t_k − (t_k − t_{k−1})/2``, where it is the motion to second order:
+    a consumer that takes the twist linear between samples, or as the motion at its stamp, takes it so. Both clocks
+    move alike. (One that holds each sample until the next takes it at its interval's start:
+    ``alignment.held_stamps``.)"""
+    if len(stream) < 2:
+        return stream
+    back = interval_spans(stream) // 2
     return Vec3Stream(stream.topic, stream.frame_id, stream.t_ns - back, stream.rec_ns - back, stream.xyz)

@@ -1288,5 +1288,6 @@ SPEC = ObserverSpec(
     check_config=check_config,
     uses_noise=True,
     own_time_offset=True,
+    interpolates=True,
     takes_known_map=False,
 )
