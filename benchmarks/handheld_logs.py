@@ -368,7 +368,40 @@ CLIPPED2 = (
     Case(3958, "handheld", 90, "hand-held, quiet gyro clipped at 2 rad/s", wobble=0.6, gyro_x=1, gyro_clip=2.0, **R6),
     Case(3959, "ground", 180, "ground robot, gyro clipped at 0.2 rad/s", "ros2", gyro_clip=0.2, **R6),
 )
+#: a rig at rest with few landmarks in view (session 36, docs/benchmarks.md "A robot at rest with one landmark in
+#: view"): seed=3962 of round 8 without its stop (the control), and ground and hand-held rigs still 30-90 % of their
+#: log in one or several stops, with all, 1, 3 or 10 landmarks
+STILL = (
+    replace(ROUND8[2], note="the same, never still (control)", stops=()),
+    Case(4010, "ground", 150, "ground robot still 30 % (45-90 s)", stops=((45.0, 45.0),), **R6),
+    Case(
+        4011,
+        "ground",
+        180,
+        "ground robot still 60 % in 3 stops",
+        "bag",
+        stops=tuple((s, 36.0) for s in (20, 80, 130)),
+        **R6,
+    ),
+    Case(4012, "ground", 150, "ground robot still 90 % (10-145 s)", stops=((10.0, 135.0),), **R6),
+    Case(4013, "handheld", 120, "still 50 % in 2 stops", "ros2", stops=((20.0, 30.0), (70.0, 30.0)), **R6),
+    Case(4014, "handheld", 120, "still 80 % (15-111 s)", stops=((15.0, 96.0),), **R6),
+    Case(4015, "ground", 150, "ground robot still 60 %, 1 landmark", stops=((30.0, 90.0),), keep_ids=1, **R6),
+    Case(4016, "ground", 150, "ground robot still 60 %, 3 landmarks", "bag", stops=((30.0, 90.0),), keep_ids=3, **R6),
+    Case(4017, "ground", 150, "ground robot still 60 %, 10 landmarks", stops=((30.0, 90.0),), keep_ids=10, **R6),
+    Case(
+        4018,
+        "handheld",
+        120,
+        "still 60 % in 3 stops, 3 landmarks",
+        stops=tuple((s, 24.0) for s in (10, 45, 80)),
+        keep_ids=3,
+        **R6,
+    ),
+    Case(4019, "loop", 180, "loop, still 50 % in 2 stops", "ros2", stops=((30.0, 45.0), (110.0, 45.0)), **R6),
+)
 SETS = {
+    "still": STILL,
     "round4": CASES,
     "round5": ROUND5,
     "round6": ROUND6,

@@ -352,6 +352,33 @@ def running_mean(t_ns: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray
     return (csum[hi] - csum[lo]) / (hi - lo)[:, None]
 
 
+#: A velocity sample stands still (:func:`still_mask`) when the velocity's running mean over
+#: ``MOTION_MEAN_WINDOW_S`` s about it is within ``STILL_CHI2`` (χ²(3) at 0.999) of zero under the mean's own
+#: noise (the density ``q_v`` over the window) and the gyro's running means over the windows just before and after
+#: it differ by no more than ``STILL_CHI2`` under theirs: no translation and no change of turn rate a stream's
+#: white noise would not explain (a round rule, not fitted to a log; docs/benchmarks.md "A robot at rest with one
+#: landmark in view, session 36").
+STILL_CHI2 = 16.27
+
+
+def still_mask(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray, q_om, q_v) -> np.ndarray:
+    """Which of the velocity samples (stamps ``t_ns``, (N,) sorted; ``omega`` and ``velocity`` (N, 3) there) the
+    body stands still at (``STILL_CHI2``), from the densities' variances ``q_om`` and ``q_v`` (3 each, per s)."""
+    n = t_ns.shape[0]
+    if n < 3:
+        return np.zeros(n, dtype=bool)
+    w = MOTION_MEAN_WINDOW_S
+    slow = running_mean(t_ns, np.asarray(velocity, dtype=np.float64), w)
+    d2v = np.sum(slow**2 / (np.asarray(q_v, dtype=np.float64) / w), axis=1)
+    om = running_mean(t_ns, np.asarray(omega, dtype=np.float64), w)
+    half = int(round(w * 5e8))
+    before = om[np.clip(np.searchsorted(t_ns, t_ns - half), 0, n - 1)]
+    after = om[np.clip(np.searchsorted(t_ns, t_ns + half, side="right") - 1, 0, n - 1)]
+    d2w = np.sum((after - before) ** 2 / (2.0 * np.asarray(q_om, dtype=np.float64) / w), axis=1)
+    ok = np.isfinite(d2v) & np.isfinite(d2w)
+    return ok & (d2v < STILL_CHI2) & (d2w < STILL_CHI2)
+
+
 def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray, t_ns: np.ndarray | None = None) -> dict:
     """run.json's record of the velocity bias check: the velocity bias estimate's rms over the rows kept (``bias``
     (M, 3) at velocity samples ``k``), its ``wander_m_s`` (rms about its median over the rows after the first fifth
