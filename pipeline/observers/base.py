@@ -361,11 +361,13 @@ def running_mean(t_ns: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray
 STILL_CHI2 = 16.27
 
 
-def still_mask(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray, q_om, q_v) -> np.ndarray:
+def still_mask(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray, q_om, q_v, held=()) -> np.ndarray:
     """Which of the velocity samples (stamps ``t_ns``, (N,) sorted; ``omega`` and ``velocity`` (N, 3) there) the
-    body stands still at (``STILL_CHI2``), from the densities' variances ``q_om`` and ``q_v`` (3 each, per s)."""
+    body stands still at (``STILL_CHI2``), from the densities' variances ``q_om`` and ``q_v`` (3 each, per s).
+    None when a stream is held (``noise.held``: commands, MR.CLAM's): a command of zero reads no bias, its error is
+    the motion's (a scale, slip), which an additive bias stands in for only while the body moves."""
     n = t_ns.shape[0]
-    if n < 3:
+    if n < 3 or held:
         return np.zeros(n, dtype=bool)
     w = MOTION_MEAN_WINDOW_S
     slow = running_mean(t_ns, np.asarray(velocity, dtype=np.float64), w)
