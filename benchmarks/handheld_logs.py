@@ -12,6 +12,8 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round6 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
@@ -24,7 +26,10 @@ landmark seen once, 2 or 500 landmarks, duplicated, bursty or reordered detectio
 /tf_static, a wrong stated camera extrinsic (docs/benchmarks.md, "Logs nobody has run yet, round 7"). ``--set
 round8``: session 36's (``ROUND8``): a 1 kHz IMU, still for 80 % of the log, the truth at 1 Hz, lost or late, a
 camera on a lever arm or looking backwards, covariances stated 1e-4x, an id reused, a clock jumping back, a vehicle
-that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run yet, round 8").
+that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run yet, round 8"). ``--set still``:
+session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
+in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
+log still 40 % in two stops (docs/benchmarks.md, "riekf's bias readings at rest, without batch's").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -112,6 +117,8 @@ class Case:
     cam_t: tuple[float, float, float] | None = None  # the camera's position on the body (its tf_static saying so)
     reused_id: tuple[int, int, float] | None = None  # (a, b, from s): tag a gone, tag b carries id a (b unseen before)
     clock_back: tuple[float, float] | None = None  # (at s, back s): every stamp and record after it moved back
+    # session 37: the spin scenario turning at this constant rate (rad/s) from its first second, not 0.1-0.7
+    spin_rate: float = 0.0
 
 
 CASES = (
@@ -400,6 +407,24 @@ STILL = (
     ),
     Case(4019, "loop", 180, "loop, still 50 % in 2 stops", "ros2", stops=((30.0, 45.0), (110.0, 45.0)), **R6),
 )
+#: riekf's readings at rest, session 37 (docs/benchmarks.md "riekf's bias readings at rest, without batch's"): rigs
+#: turning in place at a steady rate that must not be read as still, and a ground ROS1 log still 40 % in two stops
+#: with jittered stamps and covariances stated 5x (the lead's unseen seed=9981 of session 36, drawn anew)
+RESTRIEKF = (
+    Case(4090, "spin", 90, "turns in place at a steady 0.3 rad/s", spin_rate=0.3, **R6),
+    Case(4091, "spin", 90, "turns in place at a steady 0.05 rad/s", "ros2", spin_rate=0.05, **R6),
+    Case(
+        4092,
+        "ground",
+        150,
+        "ground ROS1, still 40 % in two stops, 5 ms jitter, stated 5x",
+        "bag",
+        stops=((30.0, 30.0), (90.0, 30.0)),
+        jitter_s=0.005,
+        stated=5.0,
+        **R6,
+    ),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -409,6 +434,7 @@ SETS = {
     "clipped": CLIPPED,
     "round8": ROUND8,
     "clipped2": CLIPPED2,
+    "restriekf": RESTRIEKF,
 }
 
 
@@ -420,6 +446,19 @@ def spin_trajectory(t):
     zero, n = np.zeros_like(t), len(t)
     P = np.tile([0.0, 0.0, 1.5], (n, 1))
     return Trajectory(t, rot_z(psi), P, np.stack([zero, zero, psid], -1), np.zeros((n, 3)), np.zeros((n, 3)))
+
+
+def steady_spin_trajectory(rate: float):
+    """:func:`spin_trajectory`'s rig turning at the constant ``rate`` (rad/s) from its first second."""
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        zero, n = np.zeros_like(t), len(t)
+        P = np.tile([0.0, 0.0, 1.5], (n, 1))
+        omega = np.stack([zero, zero, np.full(n, rate)], -1)
+        return Trajectory(t, rot_z(rate * t), P, omega, np.zeros((n, 3)), np.zeros((n, 3)))
+
+    return trajectory
 
 
 def straight_trajectory(t):
@@ -468,7 +507,8 @@ def scenario(case: Case):
     if case.scenario == "straight":
         sc = replace(get_scenario("ground"), name="straight", trajectory=straight_trajectory)
     elif case.scenario == "spin":
-        sc = replace(handheld(), name="spin", trajectory=spin_trajectory)
+        spin = steady_spin_trajectory(case.spin_rate) if case.spin_rate else spin_trajectory
+        sc = replace(handheld(), name="spin", trajectory=spin)
     elif case.scenario == "flight":
         sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory())
     elif case.scenario != "handheld":
