@@ -206,10 +206,14 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   tangential velocity bias that turn the body about the landmark leave its detections unchanged, so a ground robot
   at rest with one landmark turned its heading 48 deg in 120 s at the gyro bias's error of 0.007 rad/s (seed=3962:
   APE 0.93 m, "lost"; docs/benchmarks.md, "A robot at rest with one landmark in view, session 36"). The velocity
-  samples at rest (:func:`base.still_mask`: the velocity's running mean over ``base.MOTION_MEAN_WINDOW_S`` no
-  further from zero, and the gyro's no further from the window's before it, than their white noise explains)
+  samples at rest (:func:`base.still_mask`: a stretch where neither stream's running mean over
+  ``base.MOTION_MEAN_WINDOW_S`` changes more than their white noise explains, the velocity's near zero at one of
+  its samples; the whole stretch, so that the velocity's mean over it reads its bias, not one pulled towards zero)
   are summed over windows of ``base.MOTION_MEAN_WINDOW_S`` s, and each window's means are a measurement of both
-  biases (:func:`_still_update`), with the densities' variances over the window, gated like a detection.
+  biases (:func:`_still_update`), with the densities' variances over the window, gated like a detection. A rig
+  turning in place at a steady rate reads to both streams like one at rest: the gate against the filter's own
+  gyro bias keeps it out once a landmark has narrowed that bias (docs/benchmarks.md, "riekf's bias readings at
+  rest, without batch's, session 37").
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
