@@ -9,6 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pyarrow.parquet as pq
 
+from noisy_logs import rig_noise
+
 from slamobs.pipeline.observers.base import still_mask
 
 
@@ -52,8 +54,7 @@ def test_riekf_at_rest_with_one_landmark_in_view_reads_its_gyro_bias_and_keeps_i
     stayed 0.006 rad/s off and the heading turned with it (rotation APE 9.6 deg); read at rest, the bias is within
     0.003 rad/s of the truth at the stop's end and the rotation APE under 5 deg."""
     from slamobs.pipeline.api import run_log
-    from slamobs.pipeline.noise import DEFAULTS
-    from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
+    from slamobs.pipeline.simulate import simulate, write_log
     from slamobs.pipeline.simulate.scenarios import get_scenario
 
     sc = get_scenario("ground")
@@ -66,13 +67,7 @@ def test_riekf_at_rest_with_one_landmark_in_view_reads_its_gyro_bias_and_keeps_i
         z = lambda a: np.where(still[:, None], 0.0, a)  # noqa: E731
         return replace(tr, t=t, omega=z(tr.omega), v=z(tr.v), accel=z(tr.accel))
 
-    nm = replace(
-        NoiseModel(),
-        gyro=30 * DEFAULTS["gyro"][0] * np.sqrt(200.0),
-        odom_linear=10 * DEFAULTS["velocity"][0] * np.sqrt(10.0),
-        detection_base=0.03,
-        detection_per_m=0.006,
-    )
+    nm = rig_noise(200.0, 10.0)
     sim = simulate(replace(sc, trajectory=trajectory), noise=nm, duration=70.0, seed=3962, imu_rate=200, odom_rate=10)
     det = sim.detections
     at_rest = (det.t_ns - det.t_ns[0]) * 1e-9
