@@ -13,6 +13,8 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round9 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
@@ -30,6 +32,10 @@ session 37's (``ROUND9``): a twist in wrong axes, slipping on turns or of a poin
 slower than the odometry, an id flipping, a truth starting late or drifting, a camera blind every other second, a
 gyro's scale or bias, 30 s, an aggressive flight, 2 landmarks for 5 min, coarse IMU stamps, a varying detection
 latency (docs/benchmarks.md, "Logs nobody has run yet, round 9").
+``--set still``:
+session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
+in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
+log still 40 % in two stops (docs/benchmarks.md, "riekf's bias readings at rest, without batch's").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -136,6 +142,8 @@ class Case:
     stamp_tick: tuple[str, float] | None = None  # (stream, tick s): that stream's stamps floored to the tick
     det_latency: float = 0.0  # each detection frame stamped uniform 0..det_latency s late (its arrival, not exposure)
     flight_period: float = 30.0  # the flight's figure 8 period (15: twice the speeds and rates)
+    # session 37: the spin scenario turning at this constant rate (rad/s) from its first second, not 0.1-0.7
+    spin_rate: float = 0.0
 
 
 CASES = (
@@ -434,7 +442,58 @@ ROUND9 = (
         **R6,
     ),
 )
+#: a rig at rest with few landmarks in view (session 36, docs/benchmarks.md "A robot at rest with one landmark in
+#: view"): seed=3962 of round 8 without its stop (the control), and ground and hand-held rigs still 30-90 % of their
+#: log in one or several stops, with all, 1, 3 or 10 landmarks
+STILL = (
+    replace(ROUND8[2], note="the same, never still (control)", stops=()),
+    Case(4010, "ground", 150, "ground robot still 30 % (45-90 s)", stops=((45.0, 45.0),), **R6),
+    Case(
+        4011,
+        "ground",
+        180,
+        "ground robot still 60 % in 3 stops",
+        "bag",
+        stops=tuple((s, 36.0) for s in (20, 80, 130)),
+        **R6,
+    ),
+    Case(4012, "ground", 150, "ground robot still 90 % (10-145 s)", stops=((10.0, 135.0),), **R6),
+    Case(4013, "handheld", 120, "still 50 % in 2 stops", "ros2", stops=((20.0, 30.0), (70.0, 30.0)), **R6),
+    Case(4014, "handheld", 120, "still 80 % (15-111 s)", stops=((15.0, 96.0),), **R6),
+    Case(4015, "ground", 150, "ground robot still 60 %, 1 landmark", stops=((30.0, 90.0),), keep_ids=1, **R6),
+    Case(4016, "ground", 150, "ground robot still 60 %, 3 landmarks", "bag", stops=((30.0, 90.0),), keep_ids=3, **R6),
+    Case(4017, "ground", 150, "ground robot still 60 %, 10 landmarks", stops=((30.0, 90.0),), keep_ids=10, **R6),
+    Case(
+        4018,
+        "handheld",
+        120,
+        "still 60 % in 3 stops, 3 landmarks",
+        stops=tuple((s, 24.0) for s in (10, 45, 80)),
+        keep_ids=3,
+        **R6,
+    ),
+    Case(4019, "loop", 180, "loop, still 50 % in 2 stops", "ros2", stops=((30.0, 45.0), (110.0, 45.0)), **R6),
+)
+#: riekf's readings at rest, session 37 (docs/benchmarks.md "riekf's bias readings at rest, without batch's"): rigs
+#: turning in place at a steady rate that must not be read as still, and a ground ROS1 log still 40 % in two stops
+#: with jittered stamps and covariances stated 5x (the lead's unseen seed=9981 of session 36, drawn anew)
+RESTRIEKF = (
+    Case(4090, "spin", 90, "turns in place at a steady 0.3 rad/s", spin_rate=0.3, **R6),
+    Case(4091, "spin", 90, "turns in place at a steady 0.05 rad/s", "ros2", spin_rate=0.05, **R6),
+    Case(
+        4092,
+        "ground",
+        150,
+        "ground ROS1, still 40 % in two stops, 5 ms jitter, stated 5x",
+        "bag",
+        stops=((30.0, 30.0), (90.0, 30.0)),
+        jitter_s=0.005,
+        stated=5.0,
+        **R6,
+    ),
+)
 SETS = {
+    "still": STILL,
     "round4": CASES,
     "round5": ROUND5,
     "round6": ROUND6,
@@ -443,6 +502,7 @@ SETS = {
     "round8": ROUND8,
     "clipped2": CLIPPED2,
     "round9": ROUND9,
+    "restriekf": RESTRIEKF,
 }
 
 
@@ -454,6 +514,19 @@ def spin_trajectory(t):
     zero, n = np.zeros_like(t), len(t)
     P = np.tile([0.0, 0.0, 1.5], (n, 1))
     return Trajectory(t, rot_z(psi), P, np.stack([zero, zero, psid], -1), np.zeros((n, 3)), np.zeros((n, 3)))
+
+
+def steady_spin_trajectory(rate: float):
+    """:func:`spin_trajectory`'s rig turning at the constant ``rate`` (rad/s) from its first second."""
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        zero, n = np.zeros_like(t), len(t)
+        P = np.tile([0.0, 0.0, 1.5], (n, 1))
+        omega = np.stack([zero, zero, np.full(n, rate)], -1)
+        return Trajectory(t, rot_z(rate * t), P, omega, np.zeros((n, 3)), np.zeros((n, 3)))
+
+    return trajectory
 
 
 def straight_trajectory(t):
@@ -502,7 +575,8 @@ def scenario(case: Case):
     if case.scenario == "straight":
         sc = replace(get_scenario("ground"), name="straight", trajectory=straight_trajectory)
     elif case.scenario == "spin":
-        sc = replace(handheld(), name="spin", trajectory=spin_trajectory)
+        spin = steady_spin_trajectory(case.spin_rate) if case.spin_rate else spin_trajectory
+        sc = replace(handheld(), name="spin", trajectory=spin)
     elif case.scenario == "flight":
         sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory(case.flight_period))
     elif case.scenario != "handheld":

@@ -72,8 +72,8 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
         (
             "slamobs.pipeline.observers.riekf",
             "_advance",
-            "f1 f2 f2 f1 f1 f1 i1 i1 f2 f1 f2 f1 f1 f f f f f1 i i i f2 f1 f1 f1 f1 f1 i1 f1 i1 f2 i1 i1 f3 f2 f2 f2 "
-            "i1 f1 f2 f1 f2 i1 f2 f1 f3 i1 f1 b1 b1 f2 f2 f2 f2 i1 f3 f2 f2 f2 f2 i f3 f3",
+            "f1 f2 f2 f1 f1 f1 i1 i1 f2 f1 f2 f1 f1 f f f f f1 b1 i i i f2 f1 f1 f1 f1 f1 i1 f1 i1 f2 i1 i1 f3 f2 f2 "
+            "f2 i1 f1 f2 f1 f2 i1 f2 f1 f3 i1 f1 b1 b1 f2 f2 f2 f2 i1 f3 f2 f2 f2 f2 i f3 f3",
         ),
         ("slamobs.pipeline.smoother.preintegration", "sample_poses", "f1 f2 f2 f1 f3 f2 f2 i1 f3 f2"),
         ("slamobs.pipeline.evaluation.sync", "_slerp_rows", "f2 f2 f1"),

@@ -19,6 +19,21 @@ from slamobs.pipeline.smoother.estimator import BatchSmoother
 VELOCITY_FACTOR, GYRO_FACTOR = 10.0, 30.0
 
 
+def rig_noise(imu_hz: float, odom_hz: float) -> NoiseModel:
+    """The generated rigs' noise (benchmarks/handheld_logs.py's ``Case`` defaults): the gyro's and the velocity's
+    densities ``GYRO_FACTOR`` and ``VELOCITY_FACTOR`` times the defaults, per sample at the streams' rates, and the
+    detection law 0.03 m + 0.006 m per m of range."""
+    from slamobs.pipeline.noise import DEFAULTS
+
+    return replace(
+        NoiseModel(),
+        gyro=GYRO_FACTOR * DEFAULTS["gyro"][0] * np.sqrt(imu_hz),
+        odom_linear=VELOCITY_FACTOR * DEFAULTS["velocity"][0] * np.sqrt(odom_hz),
+        detection_base=0.03,
+        detection_per_m=0.006,
+    )
+
+
 def noisy_figure8(duration: float, seed: int):
     """The simulation, its aligned stream and the resolved true noise levels (gyro at 200 Hz, velocity at 50 Hz)."""
     nm = replace(

@@ -8,6 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from noisy_logs import rig_noise
+
 from slamobs.pipeline.evaluation import build_report
 from slamobs.pipeline.evaluation.align import ATTITUDE, fit_alignment, rotation_undetermined
 from slamobs.pipeline.evaluation.markdown import convergence_line
@@ -149,8 +151,7 @@ def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_veloc
     from dataclasses import replace
 
     from slamobs.pipeline.api import run_log
-    from slamobs.pipeline.noise import DEFAULTS
-    from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
+    from slamobs.pipeline.simulate import simulate, write_log
     from slamobs.pipeline.simulate.scenarios import Trajectory, handheld, rot_z
 
     def spin(t):
@@ -160,13 +161,7 @@ def test_a_rig_turning_in_place_gets_a_report_and_no_lost_verdict_from_its_veloc
         pos = np.tile([0.0, 0.0, 1.5], (n, 1))
         return Trajectory(t, rot_z(psi), pos, np.stack([zero, zero, psid], -1), np.zeros((n, 3)), np.zeros((n, 3)))
 
-    nm = replace(
-        NoiseModel(),
-        gyro=30 * DEFAULTS["gyro"][0] * np.sqrt(200.0),
-        odom_linear=10 * DEFAULTS["velocity"][0] * np.sqrt(10.0),
-        detection_base=0.03,
-        detection_per_m=0.006,
-    )
+    nm = rig_noise(200.0, 10.0)
     sc = replace(handheld(), name="spin", trajectory=spin)
     sim = simulate(sc, noise=nm, duration=90.0, seed=3704, imu_rate=200.0, odom_rate=10.0, detection_rate=15.0)
     log = write_log(sim, tmp_path / "spin.mcap", overwrite=True)

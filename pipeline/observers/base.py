@@ -352,6 +352,42 @@ def running_mean(t_ns: np.ndarray, x: np.ndarray, window_s: float) -> np.ndarray
     return (csum[hi] - csum[lo]) / (hi - lo)[:, None]
 
 
+#: A body stands still (:func:`still_mask`) through a stretch where neither stream's running mean over
+#: ``MOTION_MEAN_WINDOW_S`` s changes, the windows just before and after each sample differing by no more than
+#: ``STILL_CHI2`` (χ²(3) at 0.999) under their own noise (the densities over the window), when the velocity's running
+#: mean is within ``STILL_CHI2`` of zero at one of its samples at least: no change of motion a stream's white noise
+#: would not explain, and no translation (a round rule, not fitted to a log; docs/benchmarks.md "A robot at rest
+#: with one landmark in view, session 36" and "riekf's bias readings at rest, without batch's, session 37").
+STILL_CHI2 = 16.27
+
+
+def still_mask(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray, q_om, q_v, held=()) -> np.ndarray:
+    """Which of the velocity samples (stamps ``t_ns``, (N,) sorted; ``omega`` and ``velocity`` (N, 3) there) the
+    body stands still at (``STILL_CHI2``), from the densities' variances ``q_om`` and ``q_v`` (3 each, per s).
+    The whole steady stretch, not only its samples whose velocity mean is near zero: at rest the velocity reads its
+    bias, and samples kept for their own mean near zero would read that bias pulled towards zero (a hand-held rig's
+    0.05 m/s by a third, seed=3963). None when a stream is held (``noise.held``: commands, MR.CLAM's): a command of
+    zero reads no bias, its error is the motion's (a scale, slip), which an additive bias stands in for only while
+    the body moves."""
+    n = t_ns.shape[0]
+    if n < 3 or held:
+        return np.zeros(n, dtype=bool)
+    w = MOTION_MEAN_WINDOW_S
+    q_v, q_om = np.asarray(q_v, dtype=np.float64), np.asarray(q_om, dtype=np.float64)
+    slow = running_mean(t_ns, np.asarray(velocity, dtype=np.float64), w)
+    om = running_mean(t_ns, np.asarray(omega, dtype=np.float64), w)
+    half = int(round(w * 5e8))
+    before = np.clip(np.searchsorted(t_ns, t_ns - half), 0, n - 1)
+    after = np.clip(np.searchsorted(t_ns, t_ns + half, side="right") - 1, 0, n - 1)
+    d2w = np.sum((om[after] - om[before]) ** 2 / (2.0 * q_om / w), axis=1)
+    d2dv = np.sum((slow[after] - slow[before]) ** 2 / (2.0 * q_v / w), axis=1)
+    steady = (d2w < STILL_CHI2) & (d2dv < STILL_CHI2)  # NaN compares false
+    near_zero = np.sum(slow**2 / (q_v / w), axis=1) < STILL_CHI2
+    stretch = np.cumsum(steady & ~np.concatenate([[False], steady[:-1]]))  # each steady stretch's number, from 1
+    entered = np.bincount(stretch[steady & near_zero], minlength=int(stretch[-1]) + 1) > 0
+    return steady & entered[stretch]
+
+
 def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray, t_ns: np.ndarray | None = None) -> dict:
     """run.json's record of the velocity bias check: the velocity bias estimate's rms over the rows kept (``bias``
     (M, 3) at velocity samples ``k``), its ``wander_m_s`` (rms about its median over the rows after the first fifth

@@ -201,6 +201,19 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   (``auto``, true, false) follows the evidence,
   forces the floor or turns it off. Samples with no roll, pitch or vertical part at all (a planar log by
   construction) stay in their plane without it, and nothing changes.
+* At rest: a body that stands still neither turns nor moves, so its gyro reads its bias and its velocity input its
+  bias. Beside a single landmark in view nothing else holds the gyro's bias about the vertical: a heading and a
+  tangential velocity bias that turn the body about the landmark leave its detections unchanged, so a ground robot
+  at rest with one landmark turned its heading 48 deg in 120 s at the gyro bias's error of 0.007 rad/s (seed=3962:
+  APE 0.93 m, "lost"; docs/benchmarks.md, "A robot at rest with one landmark in view, session 36"). The velocity
+  samples at rest (:func:`base.still_mask`: a stretch where neither stream's running mean over
+  ``base.MOTION_MEAN_WINDOW_S`` changes more than their white noise explains, the velocity's near zero at one of
+  its samples; the whole stretch, so that the velocity's mean over it reads its bias, not one pulled towards zero)
+  are summed over windows of ``base.MOTION_MEAN_WINDOW_S`` s, and each window's means are a measurement of both
+  biases (:func:`_still_update`), with the densities' variances over the window, gated like a detection. A rig
+  turning in place at a steady rate reads to both streams like one at rest: the gate against the filter's own
+  gyro bias keeps it out once a landmark has narrowed that bias (docs/benchmarks.md, "riekf's bias readings at
+  rest, without batch's, session 37").
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -222,7 +235,15 @@ from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import floor_tilt_row, project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.noise import LEVEL_CHOICE_P, chi2_quantile, format_level, nees_bounds, stated_above
-from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.base import (
+    MOTION_MEAN_WINDOW_S,
+    KernelState,
+    ObserverDiverged,
+    ObserverSpec,
+    Outputs,
+    Stepper,
+    still_mask,
+)
 from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.simd import add8, fma8, load8, mul8, splat8, store8, sub8
@@ -244,6 +265,10 @@ _GAP_OM, _GAP_V = 11, 12
 #: The gyro-bias walk's variance factor and its first stretch's largest ratio (module docstring, "Gyro-bias walk"):
 #: the velocity's are ``_WALK`` and ``_WALK_MAX``; :data:`_WALK_SLOTS` lists both walks' slots, gyro first.
 _GWALK, _GWALK_MAX = 13, 14
+#: A still stretch's running sums (:func:`_still_update`): its first sample's time, the samples, the gyro's and the
+#: velocity's sums.
+_STILL_T0, _STILL_N, _STILL_SUM = 15, 16, 17
+_N_CLOCKS = 23
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -1059,6 +1084,61 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
 
 
 @njit(cache=True)
+def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, gate):
+    """A still stretch's pseudo-measurement (module docstring, "At rest"): over the ``fs[_STILL_N]`` samples summed
+    since ``fs[_STILL_T0]`` the body neither turned nor moved, so the gyro's mean reads its bias and the velocity's
+    its bias, each with its density's variance over the span (``q_om``, ``q_v``); ``H`` the identity on the bias
+    rows; skipped when the innovation's d² exceeds ``gate``. One Kalman update of the whole (mirrored) state, then
+    :func:`_correct`."""
+    n = fs[_STILL_N]
+    span = (fs[_T] - fs[_STILL_T0]) * n / max(n - 1.0, 1.0)
+    if n < 2.0 or span <= 0.0:
+        return
+    _mirror(cov, d)
+    z = np.empty(6)
+    s = np.empty((6, 6))
+    for r in range(3):
+        z[r] = fs[_STILL_SUM + r] / n - b_om[r]
+        z[3 + r] = fs[_STILL_SUM + 3 + r] / n - b_v[r]
+    for r in range(6):
+        for q in range(6):
+            s[r, q] = cov[6 + r, 6 + q]
+    for r in range(3):
+        s[r, r] += q_om[r] / span
+        s[3 + r, 3 + r] += q_v[r] / span
+    if not cholesky_lower(s, np.int64(6)):
+        return
+    b = np.empty((6, d))  # W = L⁻¹ H Σ, column by column
+    for j in range(d):
+        for r in range(6):
+            v = cov[6 + r, j]
+            for q in range(r):
+                v -= s[r, q] * b[q, j]
+            b[r, j] = v / s[r, r]
+    y = np.empty(6)  # L⁻¹ z
+    d2 = 0.0
+    for r in range(6):
+        v = z[r]
+        for q in range(r):
+            v -= s[r, q] * y[q]
+        y[r] = v / s[r, r]
+        d2 += y[r] * y[r]
+    if d2 > gate:
+        return
+    xi = np.zeros(d)
+    for j in range(d):
+        for r in range(6):
+            xi[j] += b[r, j] * y[r]
+    for i in range(d):  # Σ ← Σ − WᵀW
+        for j in range(d):
+            v = 0.0
+            for r in range(6):
+                v += b[r, i] * b[r, j]
+            cov[i, j] -= v
+    _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+
+
+@njit(cache=True)
 def _settle(cov, d, lt, rt, dp):
     """Apply the pending propagation (:func:`propagation_terms`) to the covariance now, and clear it."""
     # int64s, not literals: numba compiles a callee once per literal argument (literal 6 and -1 here compiled apply and
@@ -1603,6 +1683,7 @@ def _advance(
     gate,
     max_scale,
     plane,
+    still,
     out_every,
     iv_stop,
     budget,
@@ -1800,6 +1881,23 @@ def _advance(
                 acc_dt = 0.0
                 _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane)
                 fs[_PLANE_T] = t_next
+            if still[iv]:  # at rest (module docstring, "At rest"): the biases read over each still window
+                if fs[_STILL_N] == 0.0:
+                    fs[_STILL_T0] = t_next
+                fs[_STILL_N] += 1.0
+                for c in range(3):
+                    fs[_STILL_SUM + c] += omega[iv, c]
+                    fs[_STILL_SUM + 3 + c] += vel[iv, c]
+                if t_next - fs[_STILL_T0] >= MOTION_MEAN_WINDOW_S:
+                    flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
+                    acc_dt = 0.0
+                    fs[_T] = t
+                    _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, qs_om, qs_v, gate)
+                    fs[_STILL_N] = 0.0
+                    fs[_STILL_SUM : _STILL_SUM + 6] = 0.0
+            elif fs[_STILL_N] > 0.0:
+                fs[_STILL_N] = 0.0
+                fs[_STILL_SUM : _STILL_SUM + 6] = 0.0
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out, o, pc_w)
@@ -1823,7 +1921,7 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=15)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=_N_CLOCKS)
         self.fs[_SCALE] = 1.0
         self.fs[_WALK] = self.fs[_GWALK] = 1.0
         self.fs[_DSCALE] = 1.0
@@ -1987,6 +2085,8 @@ class RiEKF(Stepper):
         white = replace(nz, gyro=self._white.gyro)
         self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, white, stream.velocity_period_ns * 1e-9)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
+        # the samples at rest (module docstring, "At rest"), judged on the white levels
+        self.still = still_mask(stream.vel_t_ns, stream.omega, stream.velocity, white.gyro**2, nz.velocity**2, nz.held)
         # the gyro's only where the angular velocity is an IMU's gyro (its own topic, not held) on a ground robot on
         # its floor: an odometry's or a VIO's angular velocity has no gyro bias that walks, and off the floor other
         # errors passed its ratio where no walk was seen to (module docstring, "Gyro-bias walk")
@@ -2260,6 +2360,7 @@ class RiEKF(Stepper):
             self.lm,
             *self.params,
             self.plane,
+            self.still,
             o.out_every,
             iv_stop,
             budget,
