@@ -34,7 +34,7 @@ from slamobs.pipeline.evaluation.figure_jobs import (
     uncertainty_plot_jobs,
 )
 from slamobs.pipeline.evaluation.align import SCALED_ALIGNMENTS
-from slamobs.pipeline.evaluation.markdown import render_markdown
+from slamobs.pipeline.evaluation.markdown import extent_words, render_markdown
 from slamobs.pipeline.evaluation.metrics import MATRICES_KEPT_ROWS, rotated
 from slamobs.pipeline.evaluation.sections import (
     EVO_ALIGN_FLAGS,
@@ -397,6 +397,53 @@ def run_hints(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
     return [] if hint is None else [hint]
 
 
+#: What the warning of a run the truth finds lost says after ``warning: <estimator>: ``: how a report made again
+#: (``slamobs report``) finds the one an earlier report left among the run's notes.
+LOST_BY_TRUTH = "by the truth its estimate never locked on to the motion"
+
+#: What each kind of estimator is told to do when the truth finds it lost (:func:`lost_warnings`).
+LOST_ADVICE = {
+    # batch held where riekf was lost with 2 landmarks over 5 min (seed=4124: 0.149 m against 13.6 m)
+    "riekf": (
+        "batch smooths the whole log and holds where a filter loses the motion over long blind stretches with few "
+        "landmarks in view: run `--observer batch` (or `slamobs compare`); more landmarks in view keep a filter on it"
+    ),
+    "batch": (
+        "read the run's other warnings for an input it used as read, and run riekf beside it (`slamobs compare`); "
+        "more landmarks in view, or a truth on the log's clock and frame"
+    ),
+}
+#: The advice to an estimator on fixed gains (one without noise levels: :func:`loose_hint` adds the tune).
+LOST_ADVICE_FIXED = "run riekf or batch, which weigh the log's own noise (`slamobs compare`)"
+
+
+def lost_warnings(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
+    """The run's warning when the report's convergence verdict is lost (``convergence.lost``: the error level
+    above the truth's own extent, the estimate never locked on to the motion), for every estimator, with what to
+    do (:data:`LOST_ADVICE`); none otherwise. The verdict alone was said in report.md and the summaries' converged
+    line, not among the ``warning:`` lines a user scans (riekf 13.6 m off on seed=4124, no warning). A run's notes
+    and its report's (:func:`add_run_context`) both hold it; a report made again replaces an earlier one's."""
+    conv, name = report.get("convergence") or {}, (metadata.get("observer") or {}).get("name")
+    if not conv.get("lost") or not name:
+        return []
+    from slamobs.pipeline.estimators import get_estimator
+
+    extent, whose, how = extent_words(conv)
+    advice = LOST_ADVICE.get(name) or (LOST_ADVICE_FIXED if not get_estimator(name).uses_noise else "")
+    return [
+        f"warning: {name}: {LOST_BY_TRUTH} (its error level, {conv['steady_level_m']:.3g} m over the last "
+        f"{round(100 * conv['tail_fraction'])} % of the log, is above the {whose}, {extent:.3g} m {how}; report.json "
+        f"convergence.lost): do not use it{'; ' + advice if advice else ''}"
+    ]
+
+
+def with_lost_warnings(notes: list[str], report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
+    """The run's ``notes`` with this report's :func:`lost_warnings` in place of an earlier report's: run.json's
+    notes as ``slamobs run`` and ``slamobs report`` write them, and the run notes the report reads."""
+    own = f"warning: {(metadata.get('observer') or {}).get('name')}: {LOST_BY_TRUTH}"
+    return [n for n in notes if not n.startswith(own)] + lost_warnings(report, metadata)
+
+
 def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
     """What the run's own record (run.json ``metadata``) says of its estimate where that is off, whatever the truth
     says: riekf's ``observer.filter.status`` ``lost`` or ``gated_at_end``, an observer without a gate likely lost
@@ -445,6 +492,7 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     from slamobs.pipeline.evaluation.sections import body_frame_notes, camera_named_notes
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
+    run_notes = with_lost_warnings(run_notes, report, metadata)
     if report.get("notes"):
         report["notes"] = camera_named_notes(report, metadata)
         report["notes"] += body_frame_notes(report, metadata.get("input") or {})

@@ -25,7 +25,13 @@ from slamobs.pipeline.alignment import TimeWindow
 from slamobs.pipeline.errors import InputError, OutputError, SlamobsError, TruthUnusable
 from slamobs.pipeline.lifetime import owner_marker
 from slamobs.pipeline.paths import check_utf8, read_manifest, temporary_prefix
-from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
+from slamobs.pipeline.evaluation.report import (
+    REPORT_FILES,
+    add_run_context,
+    evaluate_report,
+    with_lost_warnings,
+    write_report,
+)
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, recorded_offset
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import NEW, OWNER, remove_stale_temporaries, update_manifest, write_json
@@ -394,6 +400,7 @@ def report_run(
             more_figures=run_figure_jobs(tables, with_biases=False) if drawn else [],
         )
         meta = {**run.meta, "figures": report.get("figures", []), "hints": report.get("hints") or []}
+        meta["notes"] = with_lost_warnings(list(run.meta.get("notes") or []), report, run.meta)
         _stage_run_json(meta, ti.source, staged, exports)
 
     return report, _replace_report_files(run, fill)

@@ -1172,7 +1172,10 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
     shift :func:`estimate`'s velocity scale and lever arm read the pairs at: the applied one, or the search's own
     where only its lag held it back (:func:`hold_lag`: the pairs' dead reckoning holds each sample until the next,
     so at zero shift it reads the motion half an interval late; on a hand-held rig with IMU and twist both at 4 Hz,
-    seed=9957, that lag, 0.125 s, read the lateral velocity as 10.9x, 1.31 at the search's 0.124 s), else zero."""
+    seed=9957, that lag, 0.125 s, read the lateral velocity as 10.9x, 1.31 at the search's 0.124 s) or only the
+    log's halves (:func:`_halves_disagree`: the offset is found, the pairs read best there; at zero shift a detection
+    latency of 0-0.3 s per frame, seed=4126, read its lag as a lateral scale of -6.36x, sending the user to the tag
+    size), else zero."""
     shift, sigma, gain, span = _search(c)
     why, lagged, lag = None, False, hold_lag(c.stream)
     if abs(shift) >= (reach := _reach(c.stream)) - COARSE_S:
@@ -1194,6 +1197,7 @@ def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], 
         lagged = True
     else:  # only an offset about to be applied pays for the check of the halves
         why = _halves_disagree(c, stream)
+        lagged = True  # applied or held back by the halves alone, the offset found is where the pairs read best
     return shift, sigma, gain, span, why, shift if why is None or lagged else 0.0
 
 
