@@ -145,6 +145,17 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). A key whose
   odometry's own poses support its stated level (``noise.drift_evidence``: the twist's long-horizon drift from them,
   a constant bias taken out) is not tried (``NoiseSettings.disputed``). Nowhere else does anything change.
+* Range against bearing where the turn rate is held: the triplets within 1 s cannot see a range error that changes
+  more slowly (MR.CLAM's is 92-97 % shared by two detections within 1 s), and a held (commanded) turn rate's error
+  hides the rest. Where the gyro's level came from the held streams' fit and the triplets found no ratio
+  (``noise.ratio_by_deviance``; no stated level above the samples'), the first stretch is run at ``detection_ratio``
+  1 and at each of ``noise.DETECTION_RATIOS`` (batch's ladder) as the candidates above, by the same rule
+  (:func:`chosen_level`: the lowest deviance per tested detection, 1 kept unless it is within the χ² quantile
+  ``LEVEL_CHOICE_P`` of one degree of freedom), the deviance tallied over the axes that carry error
+  (:func:`ratio_deviance`: the vertical axis left out of a detection whose vertical innovation is exactly 0, a
+  planar rig's, whose ``log det`` share would otherwise reward a large ρ). run.json's ``noise.levels.detection_ratio``
+  says the ratio, each one's deviance and why (:func:`ratio_method`), and a note (docs/benchmarks.md, "riekf learns
+  the range-against-bearing ratio from its own innovations, session 37 (h-ratio2)").
 * Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
   by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
