@@ -108,9 +108,10 @@ DETECTION_RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0)
 DEVIANCE_RATIO_METHOD = (
     "riekf's innovation deviance over ρ = 1, "
     + ", ".join(f"{r:g}" for r in DETECTION_RATIOS)
-    + " (a pass each; the vertical axis left out of a detection whose vertical innovation is 0), the lowest kept "
-    f"unless 1's is within the χ² quantile {LEVEL_CHOICE_P:g} of it: the turn rate is held and the triplets within 1 s "
-    "cannot see a range error that changes slowly"
+    + " (a pass each, upwards while the deviance falls by more than the χ² quantile "
+    + f"{LEVEL_CHOICE_P:g}; the vertical axis left out of a detection whose vertical innovation is 0), the lowest kept "
+    "unless 1's is within that quantile of it: the turn rate is held and the triplets within 1 s cannot see a range "
+    "error that changes slowly"
 )
 #: Horizons (s) over which an odometry's twist is integrated against its own poses (:func:`drift_evidence`): the
 #: longest of them the stream holds ``DRIFT_WINDOWS`` disjoint windows of is tested (a choice, not fitted: the

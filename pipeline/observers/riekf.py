@@ -149,9 +149,10 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   more slowly (MR.CLAM's is 92-97 % shared by two detections within 1 s), and a held (commanded) turn rate's error
   hides the rest. Where the gyro's level came from the held streams' fit and the triplets found no ratio
   (``noise.ratio_by_deviance``; no stated level above the samples'), the first stretch is run at ``detection_ratio``
-  1 and at each of ``noise.DETECTION_RATIOS`` (batch's ladder) as the candidates above, by the same rule
-  (:func:`chosen_level`: the lowest deviance per tested detection, 1 kept unless it is within the χ² quantile
-  ``LEVEL_CHOICE_P`` of one degree of freedom), the deviance tallied over the axes that carry error
+  1 and at ``noise.DETECTION_RATIOS`` (batch's ladder) upwards while the deviance falls by more than the χ²
+  quantile ``LEVEL_CHOICE_P`` of one degree of freedom (batch's climb, :func:`ratio_climbing`), as the candidates
+  above, by the same rule (:func:`chosen_level`: the lowest deviance per tested detection, 1 kept unless it is
+  within that quantile of it), the deviance tallied over the axes that carry error
   (:func:`ratio_deviance`: the vertical axis left out of a detection whose vertical innovation is exactly 0, a
   planar rig's, whose ``log det`` share would otherwise reward a large ρ). run.json's ``noise.levels.detection_ratio``
   says the ratio, each one's deviance and why (:func:`ratio_method`), and a note (docs/benchmarks.md, "riekf learns
@@ -2090,7 +2091,7 @@ class RiEKF(Stepper):
                 **({"diverged": True} if diverged else {}),
             }
         )
-        if i + 1 < len(self._levels):
+        if i + 1 < len(self._levels) and (not self._ratio_ladder or ratio_climbing(self._levels_tried)):
             self._use_levels(i + 1)
             return True
         self._levels_chosen = chosen_level(self._levels_tried)
@@ -2637,6 +2638,21 @@ def ratio_deviance(tally: np.ndarray) -> dict:
     met in riekf's shape, ``smoother.anisotropy``); the deviance that chooses ``detection_ratio``."""
     n = int(tally[5])
     return {"tested": n, "deviance": float(tally[6]), "mean": float(tally[6] / n) if n else None}
+
+
+def ratio_climbing(tried: list[dict]) -> bool:
+    """Whether riekf's ratio ladder goes on to the next ratio: while each pass's deviance falls below the one
+    before by more than the χ² quantile ``LEVEL_CHOICE_P`` of one degree of freedom over that one's tested
+    detections (batch's climb, ``smoother.anisotropy``: the deviance is not smooth in ρ, each pass's walk and
+    bias-prior restarts its own, and the whole ladder's lowest took 6-r4 and 7-r4 of MR.CLAM to 16, 0.11-0.14 m
+    worse; docs/benchmarks.md, "riekf learns the range-against-bearing ratio from its own innovations")."""
+    if len(tried) < 2:
+        return True
+    last, before = tried[-1], tried[-2]
+    if last["deviance_mean"] is None or before["deviance_mean"] is None:
+        return False
+    gain = (before["deviance_mean"] - last["deviance_mean"]) * before["tested"]
+    return gain > chi2_quantile(LEVEL_CHOICE_P, 1)
 
 
 def ratio_method(tried: list[dict], chosen: int) -> str:
