@@ -99,6 +99,20 @@ STATED_BELOW, STATED_ABOVE = STATED_LOW, 100.0
 #: (one degree of freedom per key changed): riekf's on its detections (``observers.riekf.chosen_level``) and the
 #: odometry's own drift (:func:`drift_evidence`).
 LEVEL_CHOICE_P = 0.99
+#: Ratios of a detection's range standard deviation to its across-the-line one tried after 1 (isotropic): batch's
+#: evidence climbs them (``smoother.anisotropy``); riekf runs each as a pass and keeps the lowest innovation deviance
+#: where the turn rate is held and the triplets found no ratio (:func:`ratio_by_deviance`).
+DETECTION_RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0)
+#: ``detection_ratio``'s method where riekf chooses it (:func:`ratio_by_deviance`): ``info --noise`` says it, riekf's
+#: run.json adds the deviances and the choice.
+DEVIANCE_RATIO_METHOD = (
+    "riekf's innovation deviance over ρ = 1, "
+    + ", ".join(f"{r:g}" for r in DETECTION_RATIOS)
+    + " (a pass each, upwards while the deviance falls by more than the χ² quantile "
+    + f"{LEVEL_CHOICE_P:g}; the vertical axis left out of a detection whose vertical innovation is 0), the lowest kept "
+    "unless 1's is within that quantile of it: the turn rate is held and the triplets within 1 s cannot see a range "
+    "error that changes slowly"
+)
 #: Horizons (s) over which an odometry's twist is integrated against its own poses (:func:`drift_evidence`): the
 #: longest of them the stream holds ``DRIFT_WINDOWS`` disjoint windows of is tested (a choice, not fitted: the
 #: horizons a filter dead-reckons between detections run from about one second to the blind stretches of tens of
@@ -666,7 +680,7 @@ def resolve_noise(
             methods[key], uncertainty[key] = found[key].method, found[key].uncertainty
         else:
             values[key], sources[key] = default, "default"
-    return NoiseSettings(
+    settings = NoiseSettings(
         gyro=_vec(values["gyro"]),
         velocity=_vec(values["velocity"]),
         **{k: float(values[k]) for k in DEFAULTS if k not in ("gyro", "velocity")},
@@ -691,6 +705,19 @@ def resolve_noise(
             else 1.0
         ),
     )
+    if ratio_by_deviance(settings):
+        settings = replace(settings, methods={**methods, "detection_ratio": DEVIANCE_RATIO_METHOD})
+    return settings
+
+
+def ratio_by_deviance(settings: NoiseSettings) -> bool:
+    """Whether riekf chooses ``detection_ratio`` by its innovation deviance over ``DETECTION_RATIOS``
+    (``observers.riekf.level_candidates``): the turn rate held (commanded: the held streams' fit estimated its
+    level) and the ratio neither configured nor found by the triplets. The triplets difference detections within 1 s
+    and miss a range error that changes more slowly (MR.CLAM's: 92-97 % shared within 1 s; docs/benchmarks.md,
+    "riekf's range-against-bearing ratio on MR.CLAM from the log alone"); a gyro's or a VIO's log keeps the triplets'
+    word (TagSLAM, stereo-like and hand-held logs do not change)."""
+    return "gyro" in settings.held and settings.sources.get("detection_ratio", "default") == "default"
 
 
 def stated_below(density, estimate) -> float | None:

@@ -145,6 +145,18 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   (docs/benchmarks.md, "riekf between a stated level above the samples' and theirs, session 34"). A key whose
   odometry's own poses support its stated level (``noise.drift_evidence``: the twist's long-horizon drift from them,
   a constant bias taken out) is not tried (``NoiseSettings.disputed``). Nowhere else does anything change.
+* Range against bearing where the turn rate is held: the triplets within 1 s cannot see a range error that changes
+  more slowly (MR.CLAM's is 92-97 % shared by two detections within 1 s), and a held (commanded) turn rate's error
+  hides the rest. Where the gyro's level came from the held streams' fit and the triplets found no ratio
+  (``noise.ratio_by_deviance``; no stated level above the samples'), the first stretch is run at ``detection_ratio``
+  1 and at ``noise.DETECTION_RATIOS`` (batch's ladder) upwards while the deviance falls by more than the χ²
+  quantile ``LEVEL_CHOICE_P`` of one degree of freedom (batch's climb, :func:`ratio_climbing`), as the candidates
+  above, by the same rule (:func:`chosen_level`: the lowest deviance per tested detection, 1 kept unless it is
+  within that quantile of it), the deviance tallied over the axes that carry error
+  (:func:`ratio_deviance`: the vertical axis left out of a detection whose vertical innovation is exactly 0, a
+  planar rig's, whose ``log det`` share would otherwise reward a large ρ). run.json's ``noise.levels.detection_ratio``
+  says the ratio, each one's deviance and why (:func:`ratio_method`), and a note (docs/benchmarks.md, "riekf learns
+  the range-against-bearing ratio from its own innovations, session 37 (h-ratio2)").
 * Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
   by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
@@ -234,7 +246,16 @@ from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import floor_tilt_row, project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.noise import LEVEL_CHOICE_P, chi2_quantile, format_level, nees_bounds, stated_above
+from slamobs.pipeline.noise import (
+    DETECTION_RATIOS,
+    DEVIANCE_RATIO_METHOD,
+    LEVEL_CHOICE_P,
+    chi2_quantile,
+    format_level,
+    nees_bounds,
+    ratio_by_deviance,
+    stated_above,
+)
 from slamobs.pipeline.observers.base import (
     MOTION_MEAN_WINDOW_S,
     KernelState,
@@ -316,7 +337,8 @@ CONSISTENCY_WINDOWS = 7
 #: Rows of the window sums ``win_sum`` (columns: ``CONSISTENCY_WINDOWS``): the window's summed innovations and their
 #: covariance (0-3), the consistency ring (4), the bias corrections (5: the window's, gyro in columns 2-3, velocity
 #: in 0-1; 6-7 the velocity's ring, 9-10 the gyro's), the run's innovation tally (8,
-#: :func:`innovation_consistency`). Public: tests that call :func:`update` allocate it.
+#: :func:`innovation_consistency`, :func:`innovation_likelihood`, :func:`ratio_deviance`). Public: tests that call
+#: :func:`update` allocate it.
 WIN_SUM_ROWS = 11
 #: The pose covariance's correlation factor (module docstring, :func:`correlation_factor`): the lags of a landmark's
 #: consecutive accepted innovations summed (a ν up to about ``CORRELATION_LAGS / CORRELATION_WINDOW`` is measured
@@ -1277,6 +1299,12 @@ def update(
         if d2 < np.inf:  # the innovation deviance: log det S + d², a gated detection's d² at the gate (likelihood)
             win_sum[8, 4] += 2.0 * (np.log(s3[0, 0]) + np.log(s3[1, 1]) + np.log(s3[2, 2])) + min(d2, gate)
             win_sum[8, 5] += 1.0
+            if zi[2] == 0.0:  # no error on the vertical axis (a planar rig): its marginal over x, y (ratio_deviance)
+                w0 = zi[0] / s3[0, 0]
+                w1 = (zi[1] - s3[1, 0] * w0) / s3[1, 1]
+                win_sum[8, 6] += 2.0 * (np.log(s3[0, 0]) + np.log(s3[1, 1])) + min(w0 * w0 + w1 * w1, gate)
+            else:
+                win_sum[8, 6] += 2.0 * (np.log(s3[0, 0]) + np.log(s3[1, 1]) + np.log(s3[2, 2])) + min(d2, gate)
         if d2 > gate:
             ns[_GATED] += 1
             ns[_TAIL_GATED] += 1
@@ -2153,7 +2181,7 @@ class RiEKF(Stepper):
         stated pass's tested detections is lower by more than the χ² quantile ``LEVEL_CHOICE_P`` for the keys it
         changes (:func:`chosen_level`), and run again when it was not the last pass."""
         i = len(self._levels_tried)
-        lik = innovation_likelihood(self.state.win_sum[8])
+        lik = (ratio_deviance if _RATIO in self._levels[i]["which"] else innovation_likelihood)(self.state.win_sum[8])
         self._levels_tried.append(
             {
                 "levels": self._levels[i]["which"],
@@ -2163,10 +2191,20 @@ class RiEKF(Stepper):
                 **({"diverged": True} if diverged else {}),
             }
         )
-        if i + 1 < len(self._levels):
+        if i + 1 < len(self._levels) and (not self._ratio_ladder or ratio_climbing(self._levels_tried)):
             self._use_levels(i + 1)
             return True
         self._levels_chosen = chosen_level(self._levels_tried)
+        if _RATIO in self._levels[0]["which"]:  # the ratio's method says the deviances and the choice
+            rec = self._levels[self._levels_chosen]
+            rec["noise"] = replace(
+                rec["noise"],
+                sources={**rec["noise"].sources, _RATIO: "estimated"},
+                methods={**rec["noise"].methods, _RATIO: ratio_method(self._levels_tried, self._levels_chosen)},
+            )
+            if self._levels_chosen == i and not diverged:  # the pass just run: its levels said so
+                self._white = rec["noise"]
+                self.noise = self._noise0 = unresolved_gyro(self._white)
         if self._levels_chosen == i and not diverged:
             return False
         self._use_levels(self._levels_chosen)
@@ -2394,7 +2432,7 @@ class RiEKF(Stepper):
                 "innovation_consistency": innovation_consistency(self.state.win_sum[8]),
                 "likelihood": innovation_likelihood(self.state.win_sum[8]),
                 "correlation": self._correlation(),
-                **({"stated_levels": self._stated_levels()} if self._levels_tried else {}),
+                **({"stated_levels": self._stated_levels()} if self._levels_tried and not self._ratio_ladder else {}),
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -2410,7 +2448,16 @@ class RiEKF(Stepper):
         self.stats["notes"] += correlation_note(self.stats["metadata"]["filter"]["correlation"])
         self.stats["notes"] += unresolved_note(self._white, self.noise)
         if self._levels_chosen is not None and self._levels_tried:  # said once chosen
-            self.stats["notes"] += stated_levels_note(self.stats["metadata"]["filter"]["stated_levels"])
+            self.stats["notes"] += (
+                [f"riekf: detection_ratio {self.noise.detection_ratio:g} by {self.noise.methods[_RATIO]}"]
+                if self._ratio_ladder
+                else stated_levels_note(self.stats["metadata"]["filter"]["stated_levels"])
+            )
+
+    @property
+    def _ratio_ladder(self) -> bool:
+        """Whether the candidates are the detection ratios (:func:`level_candidates`), not stated levels."""
+        return _RATIO in self._levels[0]["which"]
 
     def _stated_levels(self) -> dict:
         """run.json ``observer.filter.stated_levels``: each candidate tried over the first stretch (which keys at the
@@ -2681,6 +2728,55 @@ def innovation_note(rec: dict) -> list[str]:
     ]
 
 
+#: The noise key of the range-against-bearing ratio (``noise.ratio_by_deviance``: candidates of its own).
+_RATIO = "detection_ratio"
+
+
+def ratio_deviance(tally: np.ndarray) -> dict:
+    """:func:`innovation_likelihood` with the vertical axis left out of each detection whose vertical innovation is
+    exactly 0 (``tally[6]``: a planar rig's, whose vertical variance is the prior's and the detection's across share
+    ``3/(ρ² + 2)`` of ``σ(r)²``, so that its ``log det`` falls with ρ at no cost in ``d²``: the trap batch's evidence
+    met in riekf's shape, ``smoother.anisotropy``); the deviance that chooses ``detection_ratio``."""
+    n = int(tally[5])
+    return {"tested": n, "deviance": float(tally[6]), "mean": float(tally[6] / n) if n else None}
+
+
+def ratio_climbing(tried: list[dict]) -> bool:
+    """Whether riekf's ratio ladder goes on to the next ratio: while each pass's deviance falls below the one
+    before by more than the χ² quantile ``LEVEL_CHOICE_P`` of one degree of freedom over that one's tested
+    detections (batch's climb, ``smoother.anisotropy``: the deviance is not smooth in ρ, each pass's walk and
+    bias-prior restarts its own, and the whole ladder's lowest took 6-r4 and 7-r4 of MR.CLAM to 16, 0.11-0.14 m
+    worse; docs/benchmarks.md, "riekf learns the range-against-bearing ratio from its own innovations")."""
+    if len(tried) < 2:
+        return True
+    last, before = tried[-1], tried[-2]
+    if last["deviance_mean"] is None or before["deviance_mean"] is None:
+        return False
+    gain = (before["deviance_mean"] - last["deviance_mean"]) * before["tested"]
+    return gain > chi2_quantile(LEVEL_CHOICE_P, 1)
+
+
+def ratio_method(tried: list[dict], chosen: int) -> str:
+    """``detection_ratio``'s method once riekf chose it (run.json ``noise.levels``, the note): each ratio's
+    deviance per tested detection and why the one used was kept."""
+
+    def dev(t: dict) -> str:
+        return "diverged" if t["deviance_mean"] is None else f"{t['deviance_mean']:.4g}"
+
+    each = "; ".join(f"{t['levels'][_RATIO]:g}: {dev(t)}" for t in tried)
+    one, used = tried[0], tried[chosen]
+    best = min(tried, key=_deviance)
+    if best is one or one["deviance_mean"] is None or best["deviance_mean"] is None:
+        why = f"{used['levels'][_RATIO]:g} the lowest"
+    else:
+        gain = (one["deviance_mean"] - best["deviance_mean"]) * one["tested"]
+        q = chi2_quantile(LEVEL_CHOICE_P, 1)
+        why = f"{best['levels'][_RATIO]:g} the lowest, below 1's by {gain:.4g} over its {one['tested']} tested " + (
+            f"detections, above the χ² quantile {q:.3g}" if used is best else f"detections, within {q:.3g}: 1 kept"
+        )
+    return f"{DEVIANCE_RATIO_METHOD}; per tested detection {each}; {why}"
+
+
 def level_candidates(white) -> list[dict]:
     """The levels riekf tries where a stated covariance is more than ``1 / noise.STATED_LOW`` times above the
     samples' white-noise estimate (``white.above_samples``): the stated (as resolved) first, then every stated key
@@ -2691,6 +2787,10 @@ def level_candidates(white) -> list[dict]:
     ``which`` (key -> "stated" or "samples") and ``noise`` (the white levels, the swapped keys' source saying so)."""
     keys = white.disputed()
     if not any(stated_above(getattr(white, k), white.above_samples[k]) is not None for k in keys):
+        if ratio_by_deviance(white):  # the detection ratios, one candidate each (noise.ratio_by_deviance)
+            return [
+                {"which": {_RATIO: r}, "noise": replace(white, detection_ratio=r)} for r in (1.0, *DETECTION_RATIOS)
+            ]
         return [{"which": {}, "noise": white}]
     subsets = [(), tuple(keys)] + ([(k,) for k in keys] if len(keys) > 1 else [])
     out = []
@@ -2720,7 +2820,7 @@ def chosen_level(tried: list[dict]) -> int:
     stated = tried[0]
     if best == 0 or stated["deviance_mean"] is None:
         return best
-    changed = sum(v == "samples" for v in tried[best]["levels"].values())
+    changed = sum(v != stated["levels"][k] for k, v in tried[best]["levels"].items())
     gain = (stated["deviance_mean"] - tried[best]["deviance_mean"]) * stated["tested"]
     return best if gain > chi2_quantile(LEVEL_CHOICE_P, changed) else 0
 

@@ -18,20 +18,17 @@ information of a detection is ``S/σ²`` with
     S = u uᵀ / k_r² + (I − u uᵀ) / k_⊥²,      k_r = ρ^(2/3),  k_⊥ = ρ^(−1/3).
 
 ``ρ`` is chosen by the smoother's evidence (:mod:`pipeline.smoother.evidence`, the same Laplace approximation
-and margin as the motion levels' scales): ``ρ = 1`` (isotropic) and ``RATIOS`` upwards while the evidence rises
-by more than ``evidence.MIN_GAIN``; once a ratio has beaten isotropy by that margin, the ratio with the highest
-evidence is kept (:func:`winner`), not the one nearest 1. The residuals themselves cannot give ``ρ``: the smoother
-absorbs the error in the direction it weighs least, so refitting the split from a solution's residuals and
-solving again runs away (MR.CLAM 7-r1: 3.0, 6.9, 12.8, 18.5, 23.0, 26.1 over six passes). Pure numerics, no I/O.
+and margin as the motion levels' scales): ``ρ = 1`` (isotropic) and ``noise.DETECTION_RATIOS`` upwards while the
+evidence rises by more than ``evidence.MIN_GAIN``; once a ratio has beaten isotropy by that margin, the ratio with
+the highest evidence is kept (:func:`winner`), not the one nearest 1. The residuals themselves cannot give ``ρ``:
+the smoother absorbs the error in the direction it weighs least, so refitting the split from a solution's residuals
+and solving again runs away (MR.CLAM 7-r1: 3.0, 6.9, 12.8, 18.5, 23.0, 26.1 over six passes). Pure numerics, no I/O.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-#: Ratios of the range's standard deviation to the across-the-line one tried after 1 (isotropic), upwards while
-#: the evidence rises.
-RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0)
 MODEL = "sigma_range = ratio^(2/3) sigma, sigma_across = ratio^(-1/3) sigma (line of sight y/|y|, det kept)"
 
 

@@ -17,7 +17,7 @@ import numpy as np
 from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.noise import DETECTION_LAW_KEYS
+from slamobs.pipeline.noise import DETECTION_LAW_KEYS, DETECTION_RATIOS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
@@ -762,7 +762,7 @@ class BatchSmoother(Stepper):
         def shaped(ratio: float):
             return replace(base, det_shape=an.shape(base.det_y, ratio))
 
-        ev.climb(an.RATIOS, *_climbing(progress, "range/bearing", shaped, self._solved_from), sols, scores)
+        ev.climb(DETECTION_RATIOS, *_climbing(progress, "range/bearing", shaped, self._solved_from), sols, scores)
         winner = an.winner(scores, ev.best_scale(scores))
         record, note = an.record(scores, winner, ev.CRITERION), an.note(scores, winner)
         if thinning is not None:
