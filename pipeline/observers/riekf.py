@@ -1481,7 +1481,7 @@ def update(
                     confirmed = True  # the same landmark from a baseline its own noise can see
         carried = np.empty((3, 3))
         _carried(held[0], cov, lm[slot_lm[(int(held[0, 0]) - N_FIXED) // 3]], carried)
-        too_long = False  # v3: the window ends by confirmation or HOLD_MAX only
+        too_long = carried[0, 0] + carried[1, 1] + carried[2, 2] > 3.0 * held[0, 4]
         print("CHECK", nh, m, confirmed, too_long, carried[0, 0] + carried[1, 1] + carried[2, 2], held[0, 4])
         if confirmed or too_long or nh + m >= HOLD_MAX:
             joint = nh + m
