@@ -266,8 +266,7 @@ _WALK_N, _WALK_RAISES, _WALK_FIXED = 23, 24, 25
 _TAIL_GATED, _LONGEST_GATED, _OPEN_GATED = 26, 27, 28
 #: The gyro-bias walk's raises and whether it is fixed (the velocity's are ``_WALK_RAISES`` and ``_WALK_FIXED``).
 _GWALK_RAISES, _GWALK_FIXED = 29, 30
-_HELD = 31  # lone far-off detections held back for a joint update (_held_update)
-N_SLOTS = 32
+N_SLOTS = 31
 #: The two bias walks (module docstring, "Gyro-bias walk"), gyro then velocity: each one's ``fs`` slots (variance
 #: factor, the largest ratio), ``ns`` slots (raises, fixed), ``win_sum`` row
 #: (its corrections' ring; the next row their expectation's).
@@ -1093,232 +1092,6 @@ def _hp_rows(hp, h, cov, dp, lt, rt, s, d):
             hp[h + c, r] = (cov[3 + c, r] + dp[c, r]) - _pending_sum(cov[s + c, r], lt, rt, s + c, r)
 
 
-#: A return's lone far-off detections held back for a joint update (:func:`_held_update`): at most this many
-#: (the blind check's window: as many detections as it takes to judge a return).
-HOLD_MAX = BLIND_WINDOW
-#: Columns of a held detection: slot, innovation (3), variance, range noise (3), pose covariance at hold (36),
-#: position at hold (3).
-HOLD_COLS = 47
-ITERATE_MAX = 8
-ITERATE_TOL = 1e-6
-DIFF_STEP = 1e-6
-
-
-@njit(cache=True)
-def _far_off(z, srr, sigma2, gate):
-    """Whether ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance ``sigma2`` (h-riekf22b's condition)."""
-    return (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) > gate * sigma2
-
-
-@njit(cache=True)
-def _residual9(z0, x, out):
-    """The innovation at the state ``exp(−ξ)X̂`` of a detection whose innovation at ``X̂`` is ``z0``; ``x`` =
-    (ξ_R, ξ_P, ξ_s). A held detection's innovation carried through the dead-reckoned motion is the same function of
-    the world-frame correction (the correction moves the whole dead-reckoned stretch rigidly)."""
-    a = np.empty((3, 3))
-    unused = np.empty(3)
-    se3_exp_into(-x[0], -x[1], -x[2], 0.0, 0.0, 0.0, a, unused)
-    t0, t1, t2 = so3_left_jacobian_apply(-x[0], -x[1], -x[2], x[3] - x[6], x[4] - x[7], x[5] - x[8])
-    for c in range(3):
-        out[c] = a[c, 0] * z0[0] + a[c, 1] * z0[1] + a[c, 2] * z0[2]
-    out[0] -= t0
-    out[1] -= t1
-    out[2] -= t2
-
-
-@njit(cache=True)
-def _solve_spd(s, k, b, out):
-    """``out = S⁻¹ b`` for the leading k × k block of ``s`` (Cholesky on a copy); False when not positive."""
-    ch = s[:k, :k].copy()
-    if not cholesky_lower(ch, np.int64(k)):
-        return False
-    for r in range(k):
-        v = b[r]
-        for c in range(r):
-            v -= ch[r, c] * out[c]
-        out[r] = v / ch[r, r]
-    for r in range(k - 1, -1, -1):
-        v = out[r]
-        for c in range(r + 1, k):
-            v -= ch[c, r] * out[c]
-        out[r] = v / ch[r, r]
-    return True
-
-
-@njit(cache=True)
-def _hold(held, h, sl, z, sigma2, ue, cov, p_hat):
-    """Row ``h`` of the held detections: slot, innovation, variance, range noise, the pose covariance and the
-    position now (``cov`` settled)."""
-    held[h, 0] = sl
-    for c in range(3):
-        held[h, 1 + c] = z[c]
-        held[h, 5 + c] = ue[c]
-        held[h, 44 + c] = p_hat[c]
-    held[h, 4] = sigma2
-    for a in range(9):
-        held[h, 8 + a] = 0.0  # the dead-reckoned motion's noise since (_carry)
-
-
-@njit(cache=True)
-def _carried(row, cov, q, out):
-    """The covariance a held detection's innovation gained from the dead-reckoned motion since it was held
-    (:func:`_carry`)."""
-    for a in range(3):
-        for b in range(3):
-            out[a, b] = row[8 + 3 * a + b]
-
-
-@njit(cache=True)
-def _carry(held, n, acc, lm, slot_lm):
-    """Add the process noise of the propagation since the last frame (``acc``'s ``Q_RR``, ``Q_PR``, ``Q_PP``, world
-    frame) to each held detection's carried noise: ``H Q Hᵀ`` with ``H = [−[q]×, I]`` (a world-frame pose error
-    moves the landmark's point ``q`` by ``ξ_R × q + ξ_P``). The bias uncertainty's share over the window is left out."""
-    dd = np.empty((6, 6))
-    for a in range(3):
-        for b in range(3):
-            dd[a, b] = acc[_QRR, a, b]
-            dd[3 + a, 3 + b] = acc[_QPP, a, b]
-            dd[3 + a, b] = acc[_QPR, a, b]
-            dd[b, 3 + a] = acc[_QPR, a, b]
-    h = np.zeros((3, 6))
-    t = np.zeros((3, 6))
-    for r in range(n):
-        q = lm[slot_lm[(int(held[r, 0]) - N_FIXED) // 3]]
-        h[0, 1], h[0, 2] = q[2], -q[1]
-        h[1, 0], h[1, 2] = -q[2], q[0]
-        h[2, 0], h[2, 1] = q[1], -q[0]
-        for c in range(3):
-            h[c, 3 + c] = 1.0
-        t[:, :] = 0.0
-        for a in range(3):
-            for b in range(6):
-                for k in range(6):
-                    t[a, b] += h[a, k] * dd[k, b]
-        for a in range(3):
-            for b in range(3):
-                v = 0.0
-                for k in range(6):
-                    v += t[a, k] * h[b, k]
-                held[r, 8 + 3 * a + b] += v
-
-
-@njit(cache=True)
-def _parallax(p_then, p_now, q, sigma2, gate):
-    """Whether the baseline since a detection was held, across its line of sight to ``q``, exceeds the gate's radius
-    of the detection's own noise (two views of one point that differ by more than it can)."""
-    u = np.empty(3)
-    b = np.empty(3)
-    for c in range(3):
-        u[c] = q[c] - p_then[c]
-        b[c] = p_now[c] - p_then[c]
-    n2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
-    along = (u[0] * b[0] + u[1] * b[1] + u[2] * b[2]) / max(n2, 1e-300)
-    perp2 = 0.0
-    for c in range(3):
-        v = b[c] - along * u[c]
-        perp2 += v * v
-    return perp2 > gate * sigma2
-
-
-@njit(cache=True)
-def _held_update(cov, d, n, slots, z0s, noise, hp, smat, z, iterate):
-    """The joint update of ``n`` detections (the held ones carried to now, and the frame's): their innovations at
-    the current state ``z0s`` (n × 3), noise blocks ``noise`` (n × 3 × 3: the detection's own and, for a held one,
-    the dead-reckoned motion's since it was held), landmark slots ``slots``. With ``iterate`` Gauss-Newton to the
-    joint maximum a posteriori (each step's Jacobian at the iterate by central differences of :func:`_residual9`),
-    else one linear step. Leaves ``H̃Σ`` in ``hp``'s rows 0 .. 3n, ``S`` in ``smat`` and ``r + H̃ξ`` in ``z`` for
-    the update's gain and downdate. ``cov`` settled and mirrored. Returns the stacked innovation's χ² at the last
-    linearisation point (``zᵀS⁻¹z`` of what the update takes)."""
-    k3 = 3 * n
-    col = np.empty(n, np.int64)  # each detection's landmark's first column in the iterate
-    idx = np.empty(6 + 3 * n, np.int64)
-    for c in range(6):
-        idx[c] = c
-    nx = 6
-    for q in range(n):
-        col[q] = -1
-        for p in range(q):
-            if slots[p] == slots[q]:
-                col[q] = col[p]
-        if col[q] < 0:
-            col[q] = nx
-            for c in range(3):
-                idx[nx + c] = slots[q] + c
-            nx += 3
-    x = np.zeros(nx)
-    x9 = np.empty(9)
-    r = np.empty(k3)
-    rq = np.empty(3)
-    rp = np.empty(3)
-    rm = np.empty(3)
-    ht = np.zeros((k3, nx))
-    zp = np.empty(k3)
-    w = np.empty(k3)
-    dim = cov.shape[1]
-    steps = ITERATE_MAX if iterate else 1
-    for _ in range(steps):
-        ht[:, :] = 0.0
-        for q in range(n):
-            for c in range(6):
-                x9[c] = x[c]
-            for c in range(3):
-                x9[6 + c] = x[col[q] + c]
-            _residual9(z0s[q], x9, rq)
-            for c in range(3):
-                r[3 * q + c] = rq[c]
-            if iterate:
-                for k in range(9):
-                    x9[k] += DIFF_STEP
-                    _residual9(z0s[q], x9, rp)
-                    x9[k] -= 2.0 * DIFF_STEP
-                    _residual9(z0s[q], x9, rm)
-                    x9[k] += DIFF_STEP
-                    kk = k if k < 6 else col[q] + k - 6
-                    for c in range(3):
-                        ht[3 * q + c, kk] += (rm[c] - rp[c]) / (2.0 * DIFF_STEP)
-            else:
-                for c in range(3):
-                    ht[3 * q + c, 3 + c] = 1.0
-                    ht[3 * q + c, col[q] + c] = -1.0
-        for a in range(k3):
-            v = r[a]
-            for k in range(nx):
-                v += ht[a, k] * x[k]
-            zp[a] = v
-        for a in range(k3):
-            for j in range(dim):
-                v = 0.0
-                for k in range(nx):
-                    v += ht[a, k] * cov[idx[k], j]
-                hp[a, j] = v
-        for a in range(k3):
-            for b in range(k3):
-                v = 0.0
-                for k in range(nx):
-                    v += hp[a, idx[k]] * ht[b, k]
-                smat[a, b] = v
-        for q in range(n):
-            for a in range(3):
-                for b in range(3):
-                    smat[3 * q + a, 3 * q + b] += noise[q, a, b]
-        if not _solve_spd(smat, k3, zp, w):
-            break
-        step = 0.0
-        for k in range(nx):
-            v = 0.0
-            for a in range(k3):
-                v += hp[a, idx[k]] * w[a]
-            step = max(step, abs(v - x[k]))
-            x[k] = v
-        if step < ITERATE_TOL:
-            break
-    chi2 = 0.0
-    for a in range(k3):
-        z[a] = zp[a]
-        chi2 += zp[a] * w[a]
-    return chi2
-
-
 @njit(cache=True, fastmath=CONTRACT)
 def update(
     a0,
@@ -1357,7 +1130,6 @@ def update(
     corr_w,
     corr_n,
     corr_sum,
-    held,
     next_a0=0,
     next_nd=-1,
 ):
@@ -1449,92 +1221,15 @@ def update(
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
     lin = np.zeros((3, 3))  # the frame's only update's linearisation term (_linearisation)
-    nh = ns[_HELD]
-    srr = np.zeros((3, 3))
-    slots = np.zeros(0, np.int64)
-    z0s = np.zeros((0, 3))
-    noise = np.zeros((0, 3, 3))
-    hp = lt[6:]
-    k3 = 0
-    joint = 0  # detections in a joint update with held ones (_held_update); 0: the frame's own update
-    iterate = False
-    if m == 1 or nh > 0:  # Σ⁻_RR: the attitude block with the pending propagation
+    if m == 1 and ns[_ARMED] == 0:  # two or more landmarks constrain the pose's turn, and a return the blind check
+        srr = np.empty((3, 3))  # judges is updated plainly; Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
             for b in range(3):
                 srr[a, b] = _pending_sum(cov[a, b], lt, rt, a, b)
-    if nh == 0 and m == 1 and _far_off(z, srr, sig2[sel[0]], gate):  # a lone far-off detection: held back
-        _settle(cov, d, lt, rt, dp)
-        _hold(held, 0, N_FIXED + 3 * slot_of[det_idx[a0 + sel[0]]], z, sig2[sel[0]], ues[sel[0]], cov, p_hat)
-        ns[_HELD] = 1
-        m = 0
-        print("HOLD", z[0], z[1], z[2], sig2[sel[0]], p_hat[0], p_hat[1], p_hat[2])
-    elif nh > 0:
-        _settle(cov, d, lt, rt, dp)
-        confirmed = False
-        for q in range(m):
-            i = det_idx[a0 + sel[q]]
-            sl = N_FIXED + 3 * slot_of[i]
-            for h in range(nh):
-                if int(held[h, 0]) != sl:
-                    confirmed = True  # a second landmark
-                elif _parallax(held[h, 44:47], p_hat, lm[i], sig2[sel[q]], gate):
-                    confirmed = True  # the same landmark from a baseline its own noise can see
-        carried = np.empty((3, 3))
-        _carried(held[0], cov, lm[slot_lm[(int(held[0, 0]) - N_FIXED) // 3]], carried)
-        too_long = carried[0, 0] + carried[1, 1] + carried[2, 2] > 3.0 * held[0, 4]
-        print("CHECK", nh, m, confirmed, too_long, carried[0, 0] + carried[1, 1] + carried[2, 2], held[0, 4])
-        if confirmed or too_long or nh + m >= HOLD_MAX:
-            joint = nh + m
-            iterate = confirmed
-        elif m > 0:
-            for q in range(m):
-                for c in range(3):
-                    zi[c] = z[3 * q + c]
-                _hold(held, nh, N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]], zi, sig2[sel[q]], ues[sel[q]], cov, p_hat)
-                nh += 1
-            ns[_HELD] = nh
-            m = 0
-    elif m == 1 and ns[_ARMED] == 0:  # two or more landmarks constrain the pose's turn, and a return the blind
-        _linearisation(z, srr, sig2[sel[0]], gate, lin)  # check judges is updated plainly
-    if joint > 0:
-        slots = np.empty(joint, np.int64)
-        z0s = np.empty((joint, 3))
-        noise = np.zeros((joint, 3, 3))
-        carried = np.empty((3, 3))
-        lq = np.zeros((3, 3))
-        for h in range(nh):
-            slots[h] = int(held[h, 0])
-            _carried(held[h], cov, lm[slot_lm[(slots[h] - N_FIXED) // 3]], carried)
-            for c in range(3):
-                z0s[h, c] = held[h, 1 + c]
-            lq[:, :] = 0.0
-            if not iterate and ns[_ARMED] == 0:  # unconfirmed: the damped update of each, as a lone one
-                _linearisation(z0s[h], cov[:3, :3].copy(), held[h, 4], gate, lq)
-            for a in range(3):
-                for b in range(3):
-                    noise[h, a, b] = held[h, 5 + a] * held[h, 5 + b] + carried[a, b] + lq[a, b]
-                noise[h, a, a] += held[h, 4]
-        for q in range(m):
-            h = nh + q
-            jq = sel[q]
-            slots[h] = N_FIXED + 3 * slot_of[det_idx[a0 + jq]]
-            for c in range(3):
-                z0s[h, c] = z[3 * q + c]
-            lq[:, :] = 0.0
-            if not iterate and ns[_ARMED] == 0:  # unconfirmed: the damped update of each, as a lone one
-                _linearisation(z0s[h], cov[:3, :3].copy(), sig2[jq], gate, lq)
-            for a in range(3):
-                for b in range(3):
-                    noise[h, a, b] = ues[jq, a] * ues[jq, b] + lq[a, b]
-                noise[h, a, a] += sig2[jq]
-        ns[_HELD] = 0
-        m = joint
+        _linearisation(z, srr, sig2[sel[0]], gate, lin)
     if m > 0:
         k3 = 3 * m
-    if joint > 0:
-        chi2 = _held_update(cov, d, joint, slots, z0s, noise, hp, smat, z, iterate)
-        print("JOINT", nh, joint, iterate, chi2, slots[0], slots[joint - 1], p_hat[0], p_hat[1], p_hat[2])
-    elif m > 0:
+        hp = lt[6:]
         # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
         # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
         for q in range(m):
@@ -1554,7 +1249,6 @@ def update(
                 for b in range(3):
                     smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
                 smat[3 * q + c, 3 * q + c] += s2
-    if m > 0:
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
                 v = 0.5 * (smat[r, c] + smat[c, r])
@@ -1945,7 +1639,6 @@ def _advance(
     consistency_log,
     walk_log,
     blind_log,
-    held,
     out_k,
     out_r,
     out_p,
@@ -2020,8 +1713,6 @@ def _advance(
             work += m
             t = t_next
         if is_frame:
-            if ns[_HELD] > 0:
-                _carry(held, ns[_HELD], acc, lm, slot_lm)
             propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
             acc_dt = 0.0
             a0 = det_offsets[jf]
@@ -2066,7 +1757,6 @@ def _advance(
                 corr_w,
                 corr_n,
                 corr_sum,
-                held,
                 det_offsets[jf + 1],
                 next_nd,
             )
@@ -2147,7 +1837,7 @@ class _State(KernelState):
         self.slot_of = np.full(n_landmarks, -1, dtype=np.int64)
         self.slot_lm = np.zeros(max(n_landmarks, 1), dtype=np.int64)
         self.acc = np.zeros((5, 3, 3))
-        k3 = 3 * (max(n_max, 1) + HOLD_MAX)  # a joint update takes the held detections too
+        k3 = 3 * max(n_max, 1)
         # the pending propagation's terms and the downdate's (propagation_terms, update), the position rows'
         self.lt = np.zeros((6 + k3, dim))
         self.rt = np.zeros((6, dim))
@@ -2168,7 +1858,6 @@ class _State(KernelState):
         self.consistency_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
         self.walk_log = np.zeros((MAX_LOG, 4))  # a bias walk raised: time, ratio, factor on its σ, which (0 gyro)
         self.blind_log = np.zeros((MAX_LOG, 4))  # re-opened after a blind stretch: time, its length, gated share, σ
-        self.held = np.zeros((HOLD_MAX, HOLD_COLS))  # lone far-off detections held back (_held_update)
 
     def arrays(self) -> tuple:
         return (
@@ -2205,7 +1894,6 @@ class _State(KernelState):
             self.consistency_log,
             self.walk_log,
             self.blind_log,
-            self.held,
         )
 
 
