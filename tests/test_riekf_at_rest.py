@@ -14,6 +14,20 @@ from noisy_logs import rig_noise
 from slamobs.pipeline.observers.base import still_mask
 
 
+def stopped(base, lo: float, length: float):
+    """The trajectory ``base`` (a scenario's) with the body standing still over ``lo`` to ``lo + length`` s and
+    going on from where it stopped after."""
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        still = (t >= lo) & (t < lo + length)
+        tr = base(t - np.clip(t - lo, 0.0, length))
+        z = lambda a: np.where(still[:, None], 0.0, a)  # noqa: E731
+        return replace(tr, t=t, omega=z(tr.omega), v=z(tr.v), accel=z(tr.accel))
+
+    return trajectory
+
+
 def test_still_mask_takes_a_biased_reading_at_rest_as_still_and_motion_or_a_changing_turn_as_not():
     """200 Hz samples with white noise of 0.01 rad/s/sqrt(Hz) (gyro) and 0.03 m/s/sqrt(Hz) (velocity) over a
     constant bias each: still over 0-20 s, driving at 0.3 m/s over 20-40 s, turning in place at a rate rising 0.1
@@ -58,14 +72,8 @@ def test_riekf_at_rest_with_one_landmark_in_view_reads_its_gyro_bias_and_keeps_i
     from slamobs.pipeline.simulate.scenarios import get_scenario
 
     sc = get_scenario("ground")
-    base, lo, length = sc.trajectory, 15.0, 45.0
-
-    def trajectory(t):
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        still = (t >= lo) & (t < lo + length)
-        tr = base(t - np.clip(t - lo, 0.0, length))
-        z = lambda a: np.where(still[:, None], 0.0, a)  # noqa: E731
-        return replace(tr, t=t, omega=z(tr.omega), v=z(tr.v), accel=z(tr.accel))
+    lo, length = 15.0, 45.0
+    trajectory = stopped(sc.trajectory, lo, length)
 
     nm = rig_noise(200.0, 10.0)
     sim = simulate(replace(sc, trajectory=trajectory), noise=nm, duration=70.0, seed=3962, imu_rate=200, odom_rate=10)
@@ -98,14 +106,8 @@ def test_riekf_at_rest_after_a_blind_start_reads_its_biases_without_narrowing_th
     from slamobs.pipeline.simulate.scenarios import get_scenario
 
     sc = get_scenario("ground")
-    base, lo, length, duration = sc.trajectory, 30.0, 30.0, 70.0
-
-    def trajectory(t):
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        still = (t >= lo) & (t < lo + length)
-        tr = base(t - np.clip(t - lo, 0.0, length))
-        z = lambda a: np.where(still[:, None], 0.0, a)  # noqa: E731
-        return replace(tr, t=t, omega=z(tr.omega), v=z(tr.v), accel=z(tr.accel))
+    lo, length, duration = 30.0, 30.0, 70.0
+    trajectory = stopped(sc.trajectory, lo, length)
 
     sim = simulate(
         replace(sc, trajectory=trajectory),
