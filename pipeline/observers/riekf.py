@@ -225,7 +225,11 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   biases (:func:`_still_update`), with the densities' variances over the window, gated like a detection. A rig
   turning in place at a steady rate reads to both streams like one at rest: the gate against the filter's own
   gyro bias keeps it out once a landmark has narrowed that bias (docs/benchmarks.md, "riekf's bias readings at
-  rest, without batch's, session 37").
+  rest, without batch's, session 37"). While the heading is unknown (a rotation variance above that of a heading
+  uniform over the circle, ``HEADING_UNKNOWN_VAR``: a blind start on the wide gyro-bias prior) a window reads the
+  biases only and leaves the pose and the map as they were: the correlations that would move them were propagated
+  about a heading that may be turns off, and the pose they claimed was a linearisation's (docs/benchmarks.md,
+  "riekf's still readings while the heading is unknown, session 37").
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -271,6 +275,10 @@ from slamobs.pipeline.simd import add8, fma8, load8, mul8, splat8, store8, sub8
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
+#: A heading this uncertain is unknown: the variance of one drawn uniformly over the circle, π²/3 rad². Past it a
+#: still reading's correction of the pose through the biases' correlations is a linearisation about an estimate
+#: that may be turns off (:func:`_still_update`).
+HEADING_UNKNOWN_VAR = math.pi**2 / 3.0
 #: Longest propagation step of the covariance sums (s); longer gaps are cut (the mean step is exact anyway).
 MAX_STEP_S = 0.01
 #: Re-orthonormalise R̂ every this many propagation steps (as the observers, docs/observers.md §6.1).
@@ -1111,7 +1119,9 @@ def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, g
     since ``fs[_STILL_T0]`` the body neither turned nor moved, so the gyro's mean reads its bias and the velocity's
     its bias, each with its density's variance over the span (``q_om``, ``q_v``); ``H`` the identity on the bias
     rows; skipped when the innovation's d² exceeds ``gate``. One Kalman update of the whole (mirrored) state, then
-    :func:`_correct`."""
+    :func:`_correct`; while a rotation row's variance exceeds ``HEADING_UNKNOWN_VAR`` (the heading unknown) the
+    biases' rows and their correlations only (a Schmidt update: the pose and the map neither move nor narrow, since
+    the correlations that would move them were propagated about a heading that may be turns off)."""
     n = fs[_STILL_N]
     span = (fs[_T] - fs[_STILL_T0]) * n / max(n - 1.0, 1.0)
     if n < 2.0 or span <= 0.0:
@@ -1147,12 +1157,17 @@ def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, g
         d2 += y[r] * y[r]
     if d2 > gate:
         return
+    unknown = max(cov[0, 0], cov[1, 1], cov[2, 2]) > HEADING_UNKNOWN_VAR
     xi = np.zeros(d)
     for j in range(d):
+        if unknown and not 6 <= j < N_FIXED:
+            continue
         for r in range(6):
             xi[j] += b[r, j] * y[r]
-    for i in range(d):  # Σ ← Σ − WᵀW
+    for i in range(d):  # Σ ← Σ − WᵀW (the bias rows and columns only while the heading is unknown)
         for j in range(d):
+            if unknown and not (6 <= i < N_FIXED or 6 <= j < N_FIXED):
+                continue
             v = 0.0
             for r in range(6):
                 v += b[r, i] * b[r, j]
