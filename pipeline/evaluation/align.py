@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamobs.pipeline.lie import nearest_rotation, umeyama
+from slamobs.pipeline.lie import nearest_rotation, rots_to_rotvecs, umeyama
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: Other names of the same alignments: rpg_trajectory_evaluation's ``align_type`` (its eval_cfg.yaml) calls the
@@ -214,10 +214,9 @@ def attitude_fit(ref_pos, est_pos, ref_rot, est_rot) -> tuple[np.ndarray, np.nda
 
 
 def world_turns(rots: np.ndarray) -> np.ndarray:
-    """The turns between consecutive attitudes ``rots`` (N, 3, 3) in the world frame, ``sin θ · axis`` of each
+    """The turns between consecutive attitudes ``rots`` (N, 3, 3) in the world frame, the rotation vectors of
     ``R_{i+1} R_iᵀ`` (N − 1, 3): a rig's body frame convention does not change them (``R B`` for ``R``)."""
-    m = np.einsum("nij,nkj->nik", rots[1:], rots[:-1])
-    return 0.5 * np.stack([m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], axis=1)
+    return rots_to_rotvecs(np.einsum("nij,nkj->nik", rots[1:], rots[:-1]))
 
 
 def upright_fit(ref, est, rot, scaled, ref_rot, est_rot) -> tuple[np.ndarray, np.ndarray, float, str] | None:
