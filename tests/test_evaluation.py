@@ -655,13 +655,28 @@ def test_yaw_alignment_for_planar_runs():
     assert "yaw" not in rep["ape_by_alignment"]
 
 
+def mirrored_turning_against(truth: PoseStream) -> pd.DataFrame:
+    """The planar truth's mirror image (y negated) whose level attitudes turn against the truth's (yaw negated):
+    the positions and the attitudes both fit it best turned upside down."""
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["y"], poses["qz"] = -poses["y"], -poses["qz"]
+    return poses
+
+
 def test_a_planar_estimate_turned_upside_down_by_the_alignment_is_said_so():
     """A wrong planar estimate (here the truth's mirror image, level and yaw only, as a diverged observer on MR.CLAM
-    gave) fits best turned upside down: its SE(3) rotation APE reads ~180 deg whatever its heading. The note says
-    so and gives the 4-DoF numbers; an estimate the fit does not turn gets no note."""
+    gave) fits best turned upside down: its SE(3) rotation APE reads ~180 deg whatever its heading. Where its
+    attitudes turn with the truth's, the fit keeps it upright (:func:`~slamobs.pipeline.evaluation.align.upright_fit`)
+    and a note says the fit is not evo's; where they turn against them, the fit turns it over, and the note says so
+    and gives the 4-DoF numbers; an estimate the fit does not turn gets no note."""
     truth = planar_truth()
     poses = moved(truth, np.eye(3), np.zeros(3))
-    poses["y"] = -poses["y"]  # mirrored positions, the rotations still level
+    poses["y"] = -poses["y"]  # mirrored positions, the rotations still level and turning as the truth's
+    rep = checked(build_report(poses, None, None, truth))
+    assert rep["ape_by_alignment"]["se3"]["alignment"]["gravity_tilt_deg"] < 1.0  # b2da94a5: 180
+    assert not [n for n in rep["notes"] if "upside down" in n]
+    assert len([n for n in rep["notes"] if "turned over" in n and "not evo's" in n]) == 1
+    poses = mirrored_turning_against(truth)
     rep = checked(build_report(poses, None, None, truth))
     assert rep["ape_by_alignment"]["se3"]["alignment"]["rotation_matrix"][2][2] < 0  # turned upside down
     assert rep["ape"]["rotation_deg"]["rmse"] > 150.0
@@ -682,8 +697,7 @@ def test_compares_overlay_title_says_which_estimate_the_alignment_turned_upside_
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
 
     truth = planar_truth()
-    mirrored = moved(truth, np.eye(3), np.zeros(3))
-    mirrored["y"] = -mirrored["y"]  # the fit turns it upside down (the test above)
+    mirrored = mirrored_turning_against(truth)  # the fit turns it upside down (the test above)
     level = moved(truth, so3_exp(np.array([0.0, 0.0, -1.1])), np.ones(3), noise_m=0.01)
     reports = {
         "fast-adaptation": build_report(mirrored, None, None, truth),

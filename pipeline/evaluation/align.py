@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamobs.pipeline.lie import nearest_rotation, umeyama
+from slamobs.pipeline.lie import nearest_rotation, rots_to_rotvecs, umeyama
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: Other names of the same alignments: rpg_trajectory_evaluation's ``align_type`` (its eval_cfg.yaml) calls the
@@ -62,6 +62,9 @@ class Alignment:
     #: the kind asked for when another was fitted (:data:`ATTITUDE`), and why (None: the kind asked for)
     requested: str | None = None
     why: str | None = None
+    #: why the fit is not evo's Umeyama rotation although its kind is (:func:`upright_fit`: a flat truth's fit
+    #: that evo turns upside down), None where it is evo's
+    upright: str | None = None
 
     def positions(self, p: np.ndarray) -> np.ndarray:
         return apply_alignment(self.rot, self.trans, self.scale, p)
@@ -210,6 +213,48 @@ def attitude_fit(ref_pos, est_pos, ref_rot, est_rot) -> tuple[np.ndarray, np.nda
     return rot, ref.mean(axis=0) - rot @ est.mean(axis=0)
 
 
+def world_turns(rots: np.ndarray) -> np.ndarray:
+    """The turns between consecutive attitudes ``rots`` (N, 3, 3) in the world frame, the rotation vectors of
+    ``R_{i+1} R_iᵀ`` (N − 1, 3): a rig's body frame convention does not change them (``R B`` for ``R``)."""
+    return rots_to_rotvecs(np.einsum("nij,nkj->nik", rots[1:], rots[:-1]))
+
+
+def upright_fit(ref, est, rot, scaled, ref_rot, est_rot) -> tuple[np.ndarray, np.ndarray, float, str] | None:
+    """The least-squares fit of ``ref ≈ s R est + t`` that keeps the estimate's up side up on a flat truth, where
+    Umeyama's ``rot`` turns it over: ``(R, t, s, why)``, or None where ``rot`` stands. Truth positions in a plane
+    (:func:`spread_axes`: two axes over their noise) give a cross-covariance ``U D Vᵀ`` of rank 2, and two
+    rotations fit them: Umeyama's ``U S Vᵀ``, ``S = diag(1, 1, ±1)`` (trace d₁ + d₂), and ``U diag(1, −1, ∓1) Vᵀ``
+    (trace d₁ − d₂), the half turn about the plane's first axis away. They map the estimate's out-of-plane axis
+    ``V₃`` to the plane's normal ``U₃`` with opposite signs, the second being the first composed with an in-plane
+    mirror: Umeyama's wins whenever the estimate's in-plane path is nearer the truth's mirror image than the truth
+    (det of the in-plane cross-covariance below 0), a question of the estimate's error, not of its frame. A
+    rigid estimate has no mirror, so the side is the attitudes' to say: the one on which the estimate turns about
+    ``V₃`` as the truth turns about ``U₃`` (the sign of ``Σ (U₃ · ω_ref,i)(V₃ · ω_est,i)`` over
+    :func:`world_turns`, which a body frame convention does not change); where they say the other, the second
+    rotation is the fit (scale ``(d₁ − d₂ ∓ d₃)/σ²_est``)."""
+    if ref_rot is None or est_rot is None or len(ref_rot) < len(ref) or len(est_rot) < len(ref) or len(ref) < 3:
+        return None
+    if spread_axes(ref)[2] != 2:
+        return None
+    xc, yc = est - est.mean(axis=0), ref - ref.mean(axis=0)
+    u, d, vt = np.linalg.svd(yc.T @ xc / len(ref))
+    turns = float(np.sum((world_turns(ref_rot[: len(ref)]) @ u[:, 2]) * (world_turns(est_rot[: len(ref)]) @ vt[2])))
+    if turns * float(u[:, 2] @ rot @ vt[2]) >= 0.0:
+        return None  # Umeyama's side is the turns' (or neither side turns)
+    sign = np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0
+    flip = np.array([1.0, -1.0, -sign])
+    turned = u @ np.diag(flip) @ vt
+    scale = float(d @ flip / np.mean(np.sum(xc**2, axis=1))) if scaled else 1.0
+    why = (
+        f"the truth positions lie in a plane, which the estimate's positions fit as well turned over (a half turn "
+        f"about an in-plane axis and a mirror within the plane); evo's Umeyama rotation turns the estimate's z axis "
+        f"{gravity_tilt_deg(rot):.1f} deg off the truth's, the estimate then turning against the truth's turns, so "
+        f"the fit is the least-squares one on the side where it turns with them (its z axis "
+        f"{gravity_tilt_deg(turned):.1f} deg off; alignment_transformation_sim3 is this fit, not evo's)"
+    )
+    return turned, ref.mean(axis=0) - scale * turned @ est.mean(axis=0), scale, why
+
+
 def canonical(kind: str) -> str:
     """The alignment ``kind`` (any of ``NAMES``) as ``KINDS`` spells it."""
     name = ALIASES.get(kind, kind)
@@ -287,6 +332,10 @@ def fit_alignment(
             raise ValueError(f"{kind} alignment: {why}")
         rot, trans = attitude_fit(ref[:m], est[:m], ref_rot[:m], est_rot[:m])
         return Alignment(ATTITUDE, rot, trans, 1.0, m, _sim3(rot, trans, 1.0), kind, why)
+    up = upright_fit(ref[:m], est[:m], rot, kind == "sim3", ref_rot, est_rot) if checked and kind != "yaw" else None
+    if up is not None:
+        rot, trans, scale, upright = up
+        return Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale), upright=upright)
     evo = _sim3(rot, trans, scale)
     if kind == "yaw":
         return Alignment(kind, rot, trans, 1.0, m, evo)

@@ -108,6 +108,7 @@ class ApeSection(Section):
         turn = None if mirror else truth_frame_turn(ev)  # a mirror is no turn: the turn would mislead
         self.result["truth_frame_turn"] = turn
         self.result["gravity_tilt_deg"] = ev.gravity_tilt_deg  # the tilt note's condition (tilt_note), as a flag
+        self.notes += [ev.alignment.upright] if ev.alignment.upright else []
         self.notes += (mirror or truth_frame_note(ev, turn)) + truth_scale_note(ev) + sparse_pairs_note(ev)
         self.notes += still_stretch_note(ev)
 
