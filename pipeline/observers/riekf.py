@@ -2691,6 +2691,13 @@ def _deviance(tried: dict) -> float:
     return np.inf if tried["deviance_mean"] is None else tried["deviance_mean"]
 
 
+def _deviance_gain(base: dict, other: dict) -> float:
+    """How much lower ``other`` pass's innovation deviance is than ``base``'s, over ``base``'s tested detections
+    (per-detection means: the passes may test different counts), the figure :func:`chosen_level`,
+    :func:`ratio_climbing`, :func:`ratio_method` and :func:`stated_levels_note` hold against a χ² quantile."""
+    return (base["deviance_mean"] - other["deviance_mean"]) * base["tested"]
+
+
 def innovation_likelihood(tally: np.ndarray) -> dict:
     """The run's innovation deviance (−2 log-likelihood of the prediction errors, constants dropped) from ``tally``
     (row 8 of the state's ``win_sum``): the sum over the tested known-landmark detections of ``log det S + d²``,
@@ -2767,8 +2774,7 @@ def ratio_climbing(tried: list[dict]) -> bool:
     last, before = tried[-1], tried[-2]
     if last["deviance_mean"] is None or before["deviance_mean"] is None:
         return False
-    gain = (before["deviance_mean"] - last["deviance_mean"]) * before["tested"]
-    return gain > chi2_quantile(LEVEL_CHOICE_P, 1)
+    return _deviance_gain(before, last) > chi2_quantile(LEVEL_CHOICE_P, 1)
 
 
 def ratio_method(tried: list[dict], chosen: int) -> str:
@@ -2784,7 +2790,7 @@ def ratio_method(tried: list[dict], chosen: int) -> str:
     if best is one or one["deviance_mean"] is None or best["deviance_mean"] is None:
         why = f"{used['levels'][_RATIO]:g} the lowest"
     else:
-        gain = (one["deviance_mean"] - best["deviance_mean"]) * one["tested"]
+        gain = _deviance_gain(one, best)
         q = chi2_quantile(LEVEL_CHOICE_P, 1)
         why = f"{best['levels'][_RATIO]:g} the lowest, below 1's by {gain:.4g} over its {one['tested']} tested " + (
             f"detections, above the χ² quantile {q:.3g}" if used is best else f"detections, within {q:.3g}: 1 kept"
@@ -2836,8 +2842,7 @@ def chosen_level(tried: list[dict]) -> int:
     if best == 0 or stated["deviance_mean"] is None:
         return best
     changed = sum(v != stated["levels"][k] for k, v in tried[best]["levels"].items())
-    gain = (stated["deviance_mean"] - tried[best]["deviance_mean"]) * stated["tested"]
-    return best if gain > chi2_quantile(LEVEL_CHOICE_P, changed) else 0
+    return best if _deviance_gain(stated, tried[best]) > chi2_quantile(LEVEL_CHOICE_P, changed) else 0
 
 
 def stated_levels_note(rec: dict) -> list[str]:
@@ -2873,7 +2878,7 @@ def stated_levels_note(rec: dict) -> list[str]:
     elif best["deviance_mean"] is None or stated["deviance_mean"] is None:
         why = "the samples' level diverged"
     else:
-        gain = (stated["deviance_mean"] - best["deviance_mean"]) * stated["tested"]
+        gain = _deviance_gain(stated, best)
         changed = sum(v == "samples" for v in best["levels"].values())
         by = (
             f"{-gain:.3g} higher"
