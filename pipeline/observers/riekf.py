@@ -886,20 +886,6 @@ def _far_off(z, srr, sigma2, gate):
     return (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) > gate * sigma2
 
 
-@subroutine(types.none, fastmath=CONTRACT)
-def _linearisation(z, srr, lin):
-    """``lin = [z]× Σ⁻_RR [z]×ᵀ``: the covariance of the term the invariant model's ``H = [0, I, −I]`` drops (BASE's
-    damped update of a lone far-off detection, taken where :func:`_iterated`'s turn is beyond the gate)."""
-    k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
-    for a in range(3):
-        for b in range(3):
-            v = 0.0
-            for c in range(3):
-                for e in range(3):
-                    v += k[a][c] * srr[c, e] * k[b][e]
-            lin[a, b] = v
-
-
 #: The iterated update of a lone far-off detection (:func:`_iterated`): at most this many Gauss-Newton steps, stopped
 #: when a step moves the pose and landmark by less than ``ITERATE_TOL`` (rad, m).
 ITERATE_MAX = 8
@@ -1020,19 +1006,11 @@ def _iterated(cov, d, sl, z, sigma2, ue, los, hp, smat):
             x[k] = v
         if step < ITERATE_TOL:
             break
-    for a in range(3):  # the bearing iterate's turn against the prior's attitude block: x_Rᵀ Σ_RR⁻¹ x_R
-        for b in range(3):
-            ch[a, b] = cov[a, b]
-    turn2 = np.inf
-    if cholesky_lower(ch, np.int64(3)):
-        _solve3(ch, x[:3].copy(), w)
-        turn2 = x[0] * w[0] + x[1] * w[1] + x[2] * w[2]
     _linearised(z0, x, cov, d, idx, sigma2, ue, ht, zp, hp, s)
     for c in range(3):
         z[c] = zp[c]
         for b in range(3):
             smat[c, b] = s[c, b]
-    return turn2
 
 
 @subroutine(types.float64, fastmath=CONTRACT)
@@ -1484,10 +1462,9 @@ def update(
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
     lone = False  # the frame's only update, far off for its linearisation: iterated (_iterated)
-    lin = np.zeros((3, 3))  # BASE's linearisation term, where the iterated turn is beyond the gate
-    srr = np.zeros((3, 3))
     if m == 1:
-        for a in range(3):  # Σ⁻_RR: the attitude block with the pending propagation
+        srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
+        for a in range(3):
             for b in range(3):
                 srr[a, b] = _pending_sum(cov[a, b], lt, rt, a, b)
         lone = _far_off(z, srr, sig2[sel[0]], gate)
@@ -1501,15 +1478,8 @@ def update(
             los = np.empty(3)  # the detection's line of sight R̂y
             for c in range(3):
                 los[c] = r_hat[c, 0] * y0 + r_hat[c, 1] * y1 + r_hat[c, 2] * y2
-            z_in = z[:3].copy()
-            turn2 = _iterated(cov, d, N_FIXED + 3 * slot_of[det_idx[a0 + jl]], z, sig2[jl], ues[jl], los, hp, smat)
-            if turn2 > gate:  # the MAP turns the pose further than its prior allows: BASE's damped plain update
-                lone = False
-                for c in range(3):
-                    z[c] = z_in[c]
-                if ns[_ARMED] == 0:
-                    _linearisation(z, srr, lin)
-        if not lone:
+            _iterated(cov, d, N_FIXED + 3 * slot_of[det_idx[a0 + jl]], z, sig2[jl], ues[jl], los, hp, smat)
+        else:
             # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
             # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
             for q in range(m):
@@ -1527,7 +1497,7 @@ def update(
                     for k in range(k3):
                         smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                     for b in range(3):
-                        smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
+                        smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b]
                     smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
