@@ -869,18 +869,18 @@ def test_riekf_re_anchors_the_pose_after_a_blind_stretch_and_says_so(tmp_path):
     assert sum("without a known landmark's detection" in n for n in meta["notes"]) == 1
 
 
-def test_riekf_on_the_floor_explains_a_return_45_deg_off_by_its_iterated_update(tmp_path):
+def test_riekf_on_the_floor_re_opens_the_heading_after_a_blind_stretch(tmp_path):
     """unseen_logs.py's gap-40s-late-s3: the heading is 45 deg off after the gap while the floor held roll and pitch,
-    so the yaw's variance grew by the gyro's noise alone (σ 10 deg). Updated plainly, nearly every re-sighting failed
-    the gate, the blind check re-opened the pose and 22 of 1248 detections were gated (0.866 m). A lone detection far
-    off for its linearisation is updated by the iterated step (the innovation at the corrected pose, its turn
-    included): the first re-sighting turns the heading back, those that follow fit, the check has nothing to act on
-    and the run ends converged with a handful gated (0.344 m; docs/benchmarks.md, "riekf's return after a long blind
-    stretch"). The check's own action is test_riekf_re_anchors_the_pose_after_a_blind_stretch_and_says_so's."""
+    so the yaw's variance grew by the gyro's noise alone (σ 10 deg) and nearly every re-sighting fails the gate: the
+    blind check must see that return as it is (the lone-detection linearisation term is off while it judges one;
+    with the term on, the check never acted here) and re-open the pose, and the run must end neither lost nor mostly
+    gated. When this test was written, re-opening the position alone lost the log at 100 s (12 % gated; docs/
+    benchmarks.md, "The floor's faults"); since then the run holds without the heading's re-opening too (0.741 m
+    against 0.827 with it, session 34's h-riekf22c), so what this guards is the check's action, not the heading's."""
     meta = _gap_run(tmp_path, 3, "auto", late=(5, 100.0), walk=1e-4)  # as before the walk was learned from the start
     f = meta["observer"]["filter"]
-    assert f["planar"]["held"] and f["blind"] == [], f["blind"]
-    assert f["status"] != "lost" and f["gated_detections"] < 0.01 * meta["counts"]["detections"], f
+    assert f["planar"]["held"] and len(f["blind"]) == 1 and f["blind"][0]["gated_share"] > 0.9
+    assert f["status"] != "lost" and f["gated_detections"] < 0.1 * meta["counts"]["detections"], f
 
 
 def test_a_re_solve_that_ends_worse_than_the_seed_keeps_the_seed(log, monkeypatch):

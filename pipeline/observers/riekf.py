@@ -130,14 +130,6 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
   half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
   real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
-* A lone detection far off: the invariant model's constant ``H = [0, I, −I]`` drops the correction's turn of the
-  innovation itself (``−[z]× ξ_R``), second order for a small innovation and metres after a blind stretch. When a
-  frame's only update is a detection whose ``|z|² tr Σ⁻_RR`` exceeds the gate times its variance (that term alone
-  would fail the gate), the update is iterated to the maximum a posteriori (:func:`_iterated`: Gauss-Newton on the
-  innovation at the corrected state, its Jacobian at the last iterate, the covariance downdated once with it), so
-  one detection of one point turns the pose as far as its prior allows instead of moving it along what one linear
-  step gets wrong; with two or more in the frame the update is the plain one (docs/benchmarks.md, "riekf's return
-  after a long blind stretch").
 * Stated levels above the samples: a message's covariance more than ``1 / noise.STATED_LOW`` times above the
   samples' white-noise estimate is believed (a coloured noise, a VIO's, is louder than its samples show), yet where
   the sensor is white riekf weighs that stream too loosely (1.2-1.9x its APE with the true levels on session 33's
@@ -878,139 +870,29 @@ def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
     return _mahalanobis3(s, z)
 
 
-@njit(cache=True)
-def _far_off(z, srr, sigma2, gate):
-    """Whether ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance ``sigma2``: the term the invariant
-    model's ``H = [0, I, −I]`` drops, the correction's turn of the innovation itself (``−[z]× ξ_R``, second order for
-    a small innovation and metres after a blind stretch), would alone fail the gate as a detection error."""
-    return (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) > gate * sigma2
-
-
-#: The iterated update of a lone far-off detection (:func:`_iterated`): at most this many Gauss-Newton steps, stopped
-#: when a step moves the pose and landmark by less than ``ITERATE_TOL`` (rad, m).
-ITERATE_MAX = 8
-ITERATE_TOL = 1e-6
-#: The central differences' step of the iterate's Jacobian (rad, m).
-DIFF_STEP = 1e-6
-
-
-@njit(cache=True)
-def _residual(z0, x, out):
-    """The innovation at the state ``exp(−ξ)X̂`` (:func:`_correct`) of a detection whose innovation at ``X̂`` is ``z0``:
-    ``A z0 − J(−ξ_R)(ξ_P − ξ_s)`` with ``A = exp(−[ξ_R]×)``; ``x`` = (ξ_R, ξ_P, ξ_s)."""
-    a = np.empty((3, 3))
-    unused = np.empty(3)
-    se3_exp_into(-x[0], -x[1], -x[2], 0.0, 0.0, 0.0, a, unused)
-    t0, t1, t2 = so3_left_jacobian_apply(-x[0], -x[1], -x[2], x[3] - x[6], x[4] - x[7], x[5] - x[8])
-    for c in range(3):
-        out[c] = a[c, 0] * z0[0] + a[c, 1] * z0[1] + a[c, 2] * z0[2]
-    out[0] -= t0
-    out[1] -= t1
-    out[2] -= t2
-
-
-@njit(cache=True)
-def _linearised(z0, x, cov, d, idx, sigma2, ue, ht, zp, hp, s):
-    """The innovation of a detection whose innovation at ``X̂`` is ``z0`` linearised at the iterate ``x`` =
-    (ξ_R, ξ_P, ξ_s): its Jacobian ``H̃`` in ``ht`` (central differences of :func:`_residual`; ``[0, I, −I]`` plus the
-    turn's ``−[z]×`` column at the prior), the innovation ``r + H̃ξ`` in ``zp``, ``H̃Σ`` in ``hp``'s rows 0-2 and
-    ``S = H̃ΣH̃ᵀ + σ²I + u uᵀ`` in ``s`` (``idx``: the state rows of ξ; ``cov`` settled and mirrored)."""
-    r = np.empty(3)
-    rp = np.empty(3)
-    rm = np.empty(3)
-    _residual(z0, x, r)
-    for k in range(9):
-        x[k] += DIFF_STEP
-        _residual(z0, x, rp)
-        x[k] -= 2.0 * DIFF_STEP
-        _residual(z0, x, rm)
-        x[k] += DIFF_STEP
-        for c in range(3):
-            ht[c, k] = (rm[c] - rp[c]) / (2.0 * DIFF_STEP)
-    for c in range(3):
-        v = r[c]
-        for k in range(9):
-            v += ht[c, k] * x[k]
-        zp[c] = v
-    for c in range(3):
-        for j in range(d):
-            v = 0.0
-            for k in range(9):
-                v += ht[c, k] * cov[idx[k], j]
-            hp[c, j] = v
+@subroutine(types.none, fastmath=CONTRACT)
+def _linearisation(z, srr, sigma2, gate, lin):
+    """``lin = [z]× Σ⁻_RR [z]×ᵀ`` when ``|z|² tr Σ⁻_RR`` exceeds ``gate`` times the detection's variance
+    ``sigma2`` (as a detection error it alone would fail the gate), else left zero: the covariance of the term the
+    invariant model's ``H = [0, I, −I]`` drops, the correction's turn of the innovation itself (``−[z]× ξ_R``),
+    second order for a small innovation and metres after a blind stretch (docs/benchmarks.md, "riekf's
+    re-acquisition after a blind stretch"). Added to the detection's noise in the update (not in the gate) of a
+    frame whose only update is this detection: one detection of one point then moves the pose less along what it
+    cannot see; with two or more in the frame the update is the plain one (on all, the real logs' MR.CLAM runs lost
+    up to 0.09 m). Not while :func:`_blind_check` judges a return after ``BLIND_S`` or more without a known landmark
+    (its first ``BLIND_WINDOW`` detections): its verdict (the pose beyond its covariance when nearly all fail the
+    gate) is on the plain updates (damped, the floor's gap log let later ones through a pose 45° off: the check
+    did not act, a recovery took the track later)."""
+    if (z[0] * z[0] + z[1] * z[1] + z[2] * z[2]) * (srr[0, 0] + srr[1, 1] + srr[2, 2]) <= gate * sigma2:
+        return
+    k = ((0.0, -z[2], z[1]), (z[2], 0.0, -z[0]), (-z[1], z[0], 0.0))
     for a in range(3):
         for b in range(3):
             v = 0.0
-            for k in range(9):
-                v += hp[a, idx[k]] * ht[b, k]
-            s[a, b] = v + ue[a] * ue[b]
-        s[a, a] += sigma2
-
-
-@njit(cache=True)
-def _solve3(ch, b, out):
-    """``out = S⁻¹ b`` for ``S``'s lower Cholesky factor ``ch`` (L⁻¹ then L⁻ᵀ)."""
-    w0 = b[0] / ch[0, 0]
-    w1 = (b[1] - ch[1, 0] * w0) / ch[1, 1]
-    w2 = (b[2] - ch[2, 0] * w0 - ch[2, 1] * w1) / ch[2, 2]
-    w2 = w2 / ch[2, 2]
-    w1 = (w1 - ch[2, 1] * w2) / ch[1, 1]
-    w0 = (w0 - ch[1, 0] * w1 - ch[2, 0] * w2) / ch[0, 0]
-    out[0], out[1], out[2] = w0, w1, w2
-
-
-@njit(cache=True)
-def _iterated(cov, d, sl, z, sigma2, ue, los, hp, smat):
-    """A lone far-off detection's update, its bearing iterated (Gauss-Newton, an iterated EKF step on the direction
-    alone) and its range then taken in one linear step: each iterate's step is the maximum a posteriori of the
-    detection linearised there (:func:`_linearised`) with its variance along the line of sight ``los`` (``R̂y``,
-    turned by the iterate's ``ξ_R``) unbounded, the limit ``S⁻¹ − S⁻¹ûûᵀS⁻¹ / ûᵀS⁻¹û`` of its inverse; the turn's
-    information is in the direction, and a range error (MR.CLAM's are 3-8x its across errors, a 10σ one passes a
-    wide prior's gate) lies along it and would be explained by a turn. Then the detection is linearised at the
-    bearing's iterate with its whole noise and left for the update's gain and downdate (:func:`_gain`,
-    :func:`apply`): ``H̃Σ`` in ``hp``'s rows 0-2, ``S`` in ``smat``, the innovation ``r + H̃ξ`` in ``z``; the state
-    moves one Gauss-Newton step from the bearing's iterate, the range in, and the covariance is downdated once with
-    that Jacobian. ``cov`` settled and mirrored."""
-    idx = np.array([0, 1, 2, 3, 4, 5, sl, sl + 1, sl + 2])
-    z0 = z[:3].copy()
-    x = np.zeros(9)
-    xr = np.zeros(9)  # the iterate's turn alone: _residual of los at it is the line of sight turned
-    ht = np.zeros((3, 9))
-    zp = np.empty(3)
-    s = np.empty((3, 3))
-    ch = np.empty((3, 3))
-    w = np.empty(3)
-    q = np.empty(3)
-    u = np.empty(3)
-    for _ in range(ITERATE_MAX):
-        _linearised(z0, x, cov, d, idx, sigma2, ue, ht, zp, hp, s)
-        for a in range(3):
-            for b in range(3):
-                ch[a, b] = s[a, b]
-        if not cholesky_lower(ch, np.int64(3)):
-            break
-        for k in range(3):
-            xr[k] = x[k]
-        _residual(los, xr, u)
-        _solve3(ch, zp, w)
-        _solve3(ch, u, q)
-        uq = u[0] * q[0] + u[1] * q[1] + u[2] * q[2]
-        if uq > 0.0:  # w ← w − q (ûᵀw)/(ûᵀq): the range's variance unbounded (Sherman-Morrison's limit)
-            f = (u[0] * w[0] + u[1] * w[1] + u[2] * w[2]) / uq
             for c in range(3):
-                w[c] -= f * q[c]
-        step = 0.0
-        for k in range(9):
-            v = hp[0, idx[k]] * w[0] + hp[1, idx[k]] * w[1] + hp[2, idx[k]] * w[2]
-            step = max(step, abs(v - x[k]))
-            x[k] = v
-        if step < ITERATE_TOL:
-            break
-    _linearised(z0, x, cov, d, idx, sigma2, ue, ht, zp, hp, s)
-    for c in range(3):
-        z[c] = zp[c]
-        for b in range(3):
-            smat[c, b] = s[c, b]
+                for e in range(3):
+                    v += k[a][c] * srr[c, e] * k[b][e]
+            lin[a, b] = v
 
 
 @subroutine(types.float64, fastmath=CONTRACT)
@@ -1461,44 +1343,35 @@ def update(
         ns[_OPEN_GATED] = 0
     terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
     xi = np.zeros(0)
-    lone = False  # the frame's only update, far off for its linearisation: iterated (_iterated)
-    if m == 1:
-        srr = np.empty((3, 3))  # Σ⁻_RR: the attitude block with the pending propagation
+    lin = np.zeros((3, 3))  # the frame's only update's linearisation term (_linearisation)
+    if m == 1 and ns[_ARMED] == 0:  # two or more landmarks constrain the pose's turn, and a return the blind check
+        srr = np.empty((3, 3))  # judges is updated plainly; Σ⁻_RR: the attitude block with the pending propagation
         for a in range(3):
             for b in range(3):
                 srr[a, b] = _pending_sum(cov[a, b], lt, rt, a, b)
-        lone = _far_off(z, srr, sig2[sel[0]], gate)
+        _linearisation(z, srr, sig2[sel[0]], gate, lin)
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
-        if lone:
-            _settle(cov, d, lt, rt, dp)
-            jl = sel[0]
-            y0, y1, y2 = det_y[a0 + jl, 0], det_y[a0 + jl, 1], det_y[a0 + jl, 2]
-            los = np.empty(3)  # the detection's line of sight R̂y
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
+        # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
+        for q in range(m):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            _hp_rows(hp, 3 * q, cov, dp, lt, rt, sl, d)
             for c in range(3):
-                los[c] = r_hat[c, 0] * y0 + r_hat[c, 1] * y1 + r_hat[c, 2] * y2
-            _iterated(cov, d, N_FIXED + 3 * slot_of[det_idx[a0 + jl]], z, sig2[jl], ues[jl], los, hp, smat)
-        else:
-            # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
-            # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
-            for q in range(m):
-                sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-                _hp_rows(hp, 3 * q, cov, dp, lt, rt, sl, d)
-                for c in range(3):
-                    for b in range(3):  # rt is zero in the position columns: their propagation is in dp
-                        hp[3 * q + c, 3 + b] -= dp[b, sl + c]
-            # S = H Σ⁻ Hᵀ + σ² I
-            for q in range(m):
-                sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-                s2 = sig2[sel[q]]
-                jq = sel[q]
-                for c in range(3):
-                    for k in range(k3):
-                        smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
-                    for b in range(3):
-                        smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b]
-                    smat[3 * q + c, 3 * q + c] += s2
+                for b in range(3):  # rt is zero in the position columns: their propagation is in dp
+                    hp[3 * q + c, 3 + b] -= dp[b, sl + c]
+        # S = H Σ⁻ Hᵀ + σ² I
+        for q in range(m):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            s2 = sig2[sel[q]]
+            jq = sel[q]
+            for c in range(3):
+                for k in range(k3):
+                    smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
+                for b in range(3):
+                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b] + lin[c, b]
+                smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
                 v = 0.5 * (smat[r, c] + smat[c, r])
