@@ -520,41 +520,16 @@ def sampling_record(stream) -> dict:
 HALVES_DISAGREE = "the log's halves disagree"
 
 
-#: The pairs' interleaved groups (by their first detection's frame, frame number modulo this) whose offsets' scatter
-#: measures how far the search's standard error understates it (:func:`_interleaved_inflation`).
-INTERLEAVED_GROUPS = 10
-
-
-def _interleaved_inflation(c: Consistency, frame: np.ndarray) -> float:
-    """The scatter of the offsets found on ``INTERLEAVED_GROUPS`` interleaved groups of the pairs (``frame``: each
-    pair's first detection frame) over the RMS of their standard errors, at least 1. The standard error from the
-    cost's curvature takes the pairs as independent and their stamps as exact; a latency that scatters per frame
-    (seed=4126: 0-0.3 s, uniform) is shared by a frame's pairs and moves each frame's best shift: the groups, each
-    spanning the whole log, scatter by that (1.95x there), while a constant offset's do not (1.00 on round 4's 0.2-0.4
-    s offsets). A step or drift mid-log is in every group alike and keeps the halves apart (a step of 0.1 s: the
-    halves 22x the inflated errors apart)."""
-    found = [_search(c.subset(frame % INTERLEAVED_GROUPS == k))[:2] for k in range(INTERLEAVED_GROUPS)]
-    shifts, sigmas = np.array([f[0] for f in found]), np.array([f[1] for f in found])
-    return max(1.0, float(np.std(shifts, ddof=1) / np.sqrt(np.mean(np.square(sigmas)))))
-
-
 def _halves_disagree(c: Consistency, stream) -> str | None:
     """Why the two halves of the log (the pairs by the time of their first detection) do not give one offset
-    within ``HALVES_SIGMAS`` combined standard errors, those inflated by the pairs' own scatter
-    (:func:`_interleaved_inflation`, computed only where the plain errors say they disagree), or None: a constant
-    offset shows in both."""
-    per_pair = np.repeat(np.arange(stream.det_t_ns.shape[0]), np.diff(stream.det_offsets))[c.a]
-    t = stream.seconds(stream.det_t_ns)[per_pair]
+    within ``HALVES_SIGMAS`` combined standard errors, or None: a constant offset shows in both."""
+    t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))[c.a]
     first = t < np.median(t)
     found = [_search(c.subset(part)) for part in (first, ~first)]
     (s1, e1, _, _), (s2, e2, _, _) = found
-    if abs(s1 - s2) <= HALVES_SIGMAS * np.hypot(e1, e2):
-        return None
-    inflation = _interleaved_inflation(c, per_pair)
-    if abs(s1 - s2) <= HALVES_SIGMAS * inflation * np.hypot(e1, e2):
-        return None
-    scattered = f"; their errors x{inflation:.3g} by the pairs' own scatter" if inflation > 1.0 else ""
-    return f"{HALVES_DISAGREE} ({s1:+.4f} ± {e1:.2g} s and {s2:+.4f} ± {e2:.2g} s{scattered})"
+    if abs(s1 - s2) > HALVES_SIGMAS * np.hypot(e1, e2):
+        return f"{HALVES_DISAGREE} ({s1:+.4f} ± {e1:.2g} s and {s2:+.4f} ± {e2:.2g} s)"
+    return None
 
 
 #: What the warning of a turned or inverted camera extrinsic says: how a run and its report find that warning.
