@@ -34,6 +34,14 @@ Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
   at most ``MAX_TRIPLET_S`` apart (per-landmark means kept), along and across: the share of each error a triplet's
   second difference cancels (docs/benchmarks.md, "riekf's range-against-bearing ratio on MR.CLAM from the log
   alone").
+* ``--offset``: a seventh table, the detections' offset against the commands by the truth, beside the one the
+  detection pairs find (``time_offset.decide``, no truth): the lag of the commands behind Vicon's motion (the turn
+  and the distance along the heading over :data:`OFFSET_WINDOW_S` windows, one scale fitted, on a
+  :data:`OFFSET_STEP_S` grid), the lag of the detections' stamps behind Vicon's pose (the bearings, per-landmark means
+  removed, mis-associations out, the best 90 %), and the offset they make together (detection lag minus the turn's
+  lag: what to add to the detection stamps to put them on the commands' clock, the search's sign), over the whole
+  log and over each half (split at the detections' median time) (docs/benchmarks.md, "The detection offsets the
+  halves hold back, on MR.CLAM's truth").
 """
 
 from __future__ import annotations
@@ -58,6 +66,11 @@ SPEED_SEGMENTS_S = (60.0, 30.0, 15.0)
 MISASSOCIATED_RAD, SAME_FRAME_S = 0.1, 0.05
 #: ``--law``: the range bins (m) the truth's detection error and the law are compared in.
 LAW_BINS_M = (0.0, 1.5, 2.5, 3.5, 5.0)
+#: ``--offset``: the lags tried (s, a grid refined by a parabola through the best three) and the windows (s) the
+#: commands' increments are compared with Vicon's over.
+OFFSET_STEP_S = 0.005
+OFFSET_LAGS_S = np.round(np.arange(-0.6, 0.8 + OFFSET_STEP_S / 2, OFFSET_STEP_S), 4)
+OFFSET_WINDOW_S = 1.0
 
 
 def _robust(x: np.ndarray) -> float:
@@ -288,6 +301,69 @@ def ratio_cells(streams, aligned, ratio) -> list[str]:
     ]
 
 
+def _refined_best(costs: np.ndarray) -> float:
+    """The lag of :data:`OFFSET_LAGS_S` of least ``costs``, moved to the vertex of the parabola through it and its
+    neighbours."""
+    j = int(np.argmin(costs))
+    if 0 < j < costs.size - 1 and (den := costs[j - 1] - 2 * costs[j] + costs[j + 1]) > 0:
+        return float(OFFSET_LAGS_S[j] + 0.5 * (costs[j - 1] - costs[j + 1]) / den * OFFSET_STEP_S)
+    return float(OFFSET_LAGS_S[j])
+
+
+def _command_lag(vt: np.ndarray, u: np.ndarray, tt: np.ndarray, truth: np.ndarray, lo: float, hi: float) -> float:
+    """The lag (s) of the command ``u`` (held from each stamp ``vt``) behind Vicon's cumulative ``truth`` (on ``tt``):
+    the command stamped t is the motion at t + lag (least squares over the windows, one scale fitted)."""
+    start = np.arange(lo, hi - OFFSET_WINDOW_S, OFFSET_WINDOW_S / 4)
+    want = np.interp(start + OFFSET_WINDOW_S, tt, truth) - np.interp(start, tt, truth)
+    cmd = np.r_[0.0, np.cumsum(u[:-1] * np.diff(vt))]
+    costs = []
+    for lag in OFFSET_LAGS_S:
+        a = np.interp(start + OFFSET_WINDOW_S - lag, vt, cmd) - np.interp(start - lag, vt, cmd)
+        k = np.sum(a * want) / max(np.sum(a * a), 1e-12)
+        costs.append(np.mean((k * a - want) ** 2))
+    return _refined_best(np.array(costs))
+
+
+def _detection_lag(streams, aligned, lo: float, hi: float) -> float:
+    """The lag (s) of the detection stamps behind Vicon: a detection stamped t is the pose at t + lag, by the bearings
+    (per-landmark means removed, mis-associations out, the best 90 %)."""
+    t = np.repeat((aligned.det_t_ns - aligned.t0_ns) * 1e-9, np.diff(aligned.det_offsets))
+    ok = (np.abs(detection_errors(streams, aligned)[1]) < MISASSOCIATED_RAD) & (t >= lo) & (t < hi)
+    ids = aligned.landmark_ids
+    world = np.array([streams.landmark_truth[int(ids[i])][:2] for i in aligned.det_idx[ok]])
+    y, lm, t = aligned.det_y[ok, :2], aligned.det_idx[ok], t[ok]
+    costs = []
+    for lag in OFFSET_LAGS_S:
+        yaw, pos = _truth_yaw(streams, t + lag, aligned.t0_ns)
+        rel, c, s = world - pos, np.cos(yaw), np.sin(yaw)
+        e = np.arctan2(y[:, 1], y[:, 0]) - np.arctan2(-s * rel[:, 0] + c * rel[:, 1], c * rel[:, 0] + s * rel[:, 1])
+        e = (e + np.pi) % (2 * np.pi) - np.pi
+        for i in np.unique(lm):
+            e[lm == i] -= e[lm == i].mean()
+        e2 = np.sort(e**2)
+        costs.append(np.mean(e2[: int(0.9 * e2.size)]))
+    return _refined_best(np.array(costs))
+
+
+def offset_cells(streams, aligned) -> list[str]:
+    """The ``--offset`` table's cells for one robot (module docstring)."""
+    from slamobs.pipeline.observers.time_offset import decide
+
+    found = decide(aligned)
+    tt, path = _truth_path(streams, aligned.t0_ns)
+    yaw, _ = _truth_yaw(streams, tt, aligned.t0_ns)
+    vt = (aligned.vel_t_ns - aligned.t0_ns) * 1e-9
+    lo, hi = max(vt[0], tt[0]) + 1.0, min(vt[-1], tt[-1]) - 1.0
+    mid = float(np.median((aligned.det_t_ns - aligned.t0_ns) * 1e-9))
+    cells = [f"{found['estimate_s']:+.3f}", "applied" if found["applied"] else found["why_not_applied"][:26]]
+    for a, b in ((lo, hi), (lo, mid), (mid, hi)):
+        turn = _command_lag(vt, aligned.omega[:, 2], tt, yaw, a, b)
+        speed = _command_lag(vt, aligned.velocity[:, 0], tt, path, a, b)
+        seen = _detection_lag(streams, aligned, a, b)
+        cells.append(f"{turn:+.3f} / {speed:+.3f} / {seen:+.3f}: **{seen - turn:+.3f}**")
+    return cells
+
+
 def main() -> None:
     from slamobs.pipeline.alignment import align
     from slamobs.pipeline.api import read_log
@@ -301,12 +377,13 @@ def main() -> None:
     ap.add_argument("--shared", action="store_true", help="also the detections' error shared across landmarks (fourth)")
     ap.add_argument("--law", action="store_true", help="also the detection law beside the truth's per range (fifth)")
     ap.add_argument("--ratio", action="store_true", help="also the range's error against the across one (sixth)")
+    ap.add_argument("--offset", action="store_true", help="also the detections' offset by the truth (seventh)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
     heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
     print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
-    rows, speed, shared, laws, ratios = [], [], [], [], []
+    rows, speed, shared, laws, ratios, offsets = [], [], [], [], [], []
     for log in logs:
         streams = read_log(log.path)
         aligned = align(streams)
@@ -326,6 +403,8 @@ def main() -> None:
             laws.append(f"| {log.name} | " + " | ".join(law_cells(streams, aligned, estimated.detection)) + " |")
         if args.ratio:
             ratios.append(f"| {log.name} | " + " | ".join(ratio_cells(streams, aligned, estimated.ratio)) + " |")
+        if args.offset:
+            offsets.append(f"| {log.name} | " + " | ".join(offset_cells(streams, aligned)) + " |")
     lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
     print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
     print("\n".join(rows))
@@ -351,6 +430,13 @@ def main() -> None:
             f"{MAX_TRIPLET_S:g} s, range / across |\n|" + " --- |" * 5
         )
         print("\n".join(ratios))
+    if offsets:
+        lags = "the commands' turn / speed lag, the detections' lag: offset"
+        print(
+            f"\n| robot | offset the pairs find | decided | {lags}, whole log | first half | second half |"
+            "\n|" + " --- |" * 6
+        )
+        print("\n".join(offsets))
 
 
 if __name__ == "__main__":
