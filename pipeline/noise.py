@@ -271,8 +271,8 @@ class NoiseSettings:
             method = self.methods.get(k)
             if k == "detection_ratio" and method == DEVIANCE_RATIO_METHOD:  # no value before riekf's passes
                 out.append(
-                    "detection_ratio: chosen by riekf's passes, ρ = 1 only the first (its note names the one kept): "
-                    + method
+                    "detection_ratio: chosen in riekf's run by its passes, ρ = 1 only the first (riekf's note names"
+                    f" the one kept): {method}"
                 )
                 continue
             text += ")" if method is None else ": the same fit)" if method in said else f": {_told(method, said)})"

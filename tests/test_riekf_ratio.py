@@ -143,6 +143,8 @@ def test_the_notes_before_riekf_chooses_the_ratio_do_not_state_1(tmp_path):
         assert not any("detection_ratio = 1 (default: riekf" in n for n in said), said
         ratio = [n for n in said if n.startswith("noise: detection_ratio")]
         if name == "riekf":
-            assert ratio and "chosen by riekf's passes" in ratio[0] and "innovation deviance" in ratio[0], said
+            assert ratio and "chosen in riekf's run by its passes" in ratio[0] and "innovation deviance" in ratio[0], (
+                said
+            )
         else:
             assert ratio == ["noise: detection_ratio = 1 (default)"], said

@@ -104,7 +104,7 @@ def _evo_departs(ev: TrajectoryEvaluation) -> dict[str, str]:
     evo_rmse = float(np.sqrt(np.mean(np.square(ape_translation(p.ref_pos, moved)))))
     return {
         "departs": f"evo's Umeyama fit turns the estimate over on this flat truth (the APE section's note; "
-        f"align.upright_fit): evo_ape gives translation rmse {evo_rmse:.6f} m (as it prints it), not this report's "
+        f"align.upright_fit): evo_ape gives translation rmse about {evo_rmse:.4g} m, not this report's "
         f"{float(ev.translation.stats['rmse']):.4g} m"
     }
 
