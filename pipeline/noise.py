@@ -195,6 +195,15 @@ class NoiseSettings:
     #: (:meth:`disputed`)
     drift: dict[str, dict] = field(default_factory=dict)
 
+    def of_estimator(self, name: str) -> NoiseSettings:
+        """These levels as estimator ``name`` takes them: the choice of ``detection_ratio`` by riekf's passes
+        (:func:`ratio_by_deviance`, its method :data:`DEVIANCE_RATIO_METHOD`) is riekf's alone; batch starts from
+        the default 1 and weighs range against bearing by its own evidence (``smoother.anisotropy``, its note), so
+        its notes and run.json name no method of riekf's."""
+        if name == "riekf" or self.methods.get("detection_ratio") != DEVIANCE_RATIO_METHOD:
+            return self
+        return replace(self, methods={k: v for k, v in self.methods.items() if k != "detection_ratio"})
+
     def disputed(self) -> list[str]:
         """The keys of ``above_samples`` whose stated level riekf tests against the samples' on its detections:
         every one but those the odometry's own long-horizon drift supports at the stated level (``drift``)."""
@@ -260,6 +269,12 @@ class NoiseSettings:
             text = f"{k} = {format_level(value)}{' ' * bool(unit)}{unit} ({self.sources.get(k, 'default')}"
             text += f", ± {format_level(se)}" if se is not None else ""
             method = self.methods.get(k)
+            if k == "detection_ratio" and method == DEVIANCE_RATIO_METHOD:  # no value before riekf's passes
+                out.append(
+                    "detection_ratio: chosen in riekf's run by its passes, ρ = 1 only the first (riekf's note names"
+                    f" the one kept): {method}"
+                )
+                continue
             text += ")" if method is None else ": the same fit)" if method in said else f": {_told(method, said)})"
             said.setdefault(method, k)
             out.append(text)
@@ -454,7 +469,8 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     elif ratio.value < 1.0:  # no range sensor sees direction worse than distance: the turning's error shows there
         notes.append(
             f"noise: the detections' error across the line of sight is {1.0 / ratio.value:.2g}x that along it within "
-            f"1 s, most likely the dead reckoning's turning error: the same σ kept on every axis"
+            f"1 s, most likely the dead reckoning's turning error: no ratio taken from it (detection_ratio's line says "
+            "what is used)"
         )
         ratio = None
     else:  # a steep range error: the law again, its outliers judged along and across the line of sight

@@ -574,7 +574,7 @@ def estimator_input(prepared: PreparedLog, config: RunConfig) -> EstimatorInput:
         notes.append(start.note)
     noise = None
     if spec.uses_noise:  # the config's levels, else plausible covariances, else estimated, else the defaults
-        noise = log_noise(prepared, config)
+        noise = log_noise(prepared, config).of_estimator(spec.name)
         notes += [f"noise: {line}" for line in noise.lines()] + list(noise.notes)
     options = ObserverOptions(
         max_meas_age=config.time.max_meas_age,

@@ -689,6 +689,32 @@ def test_a_planar_estimate_turned_upside_down_by_the_alignment_is_said_so():
     assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "upside" in n]
 
 
+def test_the_evo_line_says_evos_number_where_the_upright_fit_is_not_evos():
+    """Where the fit keeps a planar estimate upright and evo's Umeyama turns it over (the mirrored estimate above),
+    report.md's "Reproduce with evo" line gave evo's command as if it reproduced the report's APE: report.json
+    ``evo.departs`` and that line give the translation rmse evo's Umeyama fit gives on the same pairs; a report
+    whose fit is evo's says nothing more."""
+    from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
+
+    truth = planar_truth()
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["y"] = -poses["y"]  # mirrored positions, the rotations still level and turning as the truth's
+    rep = checked(build_report(poses, None, None, truth))
+    est = np.column_stack([np.asarray(poses[c], float) for c in ("x", "y", "z")])
+    ref = truth.position[: len(est)] if len(truth) >= len(est) else None
+    assert ref is not None and np.allclose(truth.t_ns[: len(est)], np.asarray(poses["t_ns"])), "pairs by stamp"
+    rot, trans, scale = umeyama(est, ref)
+    evo_rmse = float(np.sqrt(np.mean(np.sum((apply_alignment(rot, trans, scale, est) - ref) ** 2, axis=1))))
+    assert abs(evo_rmse - rep["ape"]["translation_m"]["rmse"]) > 1e-3  # evo's number is another
+    assert f"evo_ape gives translation rmse about {evo_rmse:.4g} m" in rep["evo"]["departs"], rep["evo"]
+    line = [x for x in render_markdown(rep).splitlines() if x.startswith("Reproduce with evo")]
+    assert len(line) == 1 and rep["evo"]["departs"] in line[0], line
+    level = moved(truth, so3_exp(np.array([0.0, 0.0, -1.1])), np.ones(3), noise_m=0.01)
+    rep = checked(build_report(level, None, None, truth))
+    assert "departs" not in rep["evo"]
+    assert [x for x in render_markdown(rep).splitlines() if x.startswith("Reproduce with evo")][0].endswith("`.")
+
+
 def test_compares_overlay_title_says_which_estimate_the_alignment_turned_upside_down():
     """compare's overlay.png draws each estimate after its report's SE(3) alignment; its title said nothing of an
     estimate that alignment turned upside down, which the report's own figures say: one sentence for both."""

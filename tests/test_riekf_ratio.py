@@ -118,3 +118,33 @@ def test_riekf_finds_a_slow_range_error_the_triplets_miss(tmp_path):
     used = filt.stats["metadata"]["filter"]["noise"]["levels"]["detection_ratio"]
     assert "innovation deviance" in used["method"] and used["value"] > 1.0, used
     assert any(n.startswith("riekf: detection_ratio") for n in filt.stats["notes"]), filt.stats["notes"]
+
+
+def test_the_notes_before_riekf_chooses_the_ratio_do_not_state_1(tmp_path):
+    """Where riekf's passes choose ``detection_ratio`` (the turn rate held), the notes a run prints before them
+    (``estimator_input``) gave ``detection_ratio = 1 (default: riekf's innovation deviance ...)`` and the triplets'
+    ``... the same σ kept on every axis``, then riekf's own note a ratio of 4 or 8 (MR.CLAM; docs/benchmarks.md,
+    session 38 (h-newuser10)): riekf's say the ratio is its passes' choice and state no value; batch's (its own
+    evidence weighs range against bearing) name no method of riekf's."""
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.run import estimator_input, prepare_log
+
+    (tmp_path / "MRCLAM_Ratio").mkdir()
+    _folder(tmp_path / "MRCLAM_Ratio", 4.0, True, 4361)  # the triplets: across 2.3x along, no ratio
+    out = tmp_path / "robot1.mcap"
+    res = invoke("import", "mrclam", tmp_path / "MRCLAM_Ratio", "-o", out, "--robot", "1")
+    assert res.exit_code == 0, res.output
+    for name in ("riekf", "batch"):
+        config = replace(RunConfig(), observer=name)
+        notes = estimator_input(prepare_log(out, config, directions=False), config).notes
+        said = [n for n in notes if "detection_ratio" in n or "line of sight" in n]
+        across = [n for n in said if "error across the line of sight" in n]
+        assert across and "no ratio taken from it" in across[0] and "the same σ kept" not in across[0], said
+        assert not any("detection_ratio = 1 (default: riekf" in n for n in said), said
+        ratio = [n for n in said if n.startswith("noise: detection_ratio")]
+        if name == "riekf":
+            assert ratio and "chosen in riekf's run by its passes" in ratio[0] and "innovation deviance" in ratio[0], (
+                said
+            )
+        else:
+            assert ratio == ["noise: detection_ratio = 1 (default)"], said

@@ -65,6 +65,9 @@ class Alignment:
     #: why the fit is not evo's Umeyama rotation although its kind is (:func:`upright_fit`: a flat truth's fit
     #: that evo turns upside down), None where it is evo's
     upright: str | None = None
+    #: evo's own Umeyama fit (the 4x4 ``s R | t``) where ``upright`` departs from it, None elsewhere: what
+    #: ``evo_ape`` fits on the same pairs (report.json ``evo.departs``)
+    umeyama: np.ndarray | None = None
 
     def positions(self, p: np.ndarray) -> np.ndarray:
         return apply_alignment(self.rot, self.trans, self.scale, p)
@@ -334,8 +337,9 @@ def fit_alignment(
         return Alignment(ATTITUDE, rot, trans, 1.0, m, _sim3(rot, trans, 1.0), kind, why)
     up = upright_fit(ref[:m], est[:m], rot, kind == "sim3", ref_rot, est_rot) if checked and kind != "yaw" else None
     if up is not None:
+        evo_fit = _sim3(rot, trans, scale)
         rot, trans, scale, upright = up
-        return Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale), upright=upright)
+        return Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale), upright=upright, umeyama=evo_fit)
     evo = _sim3(rot, trans, scale)
     if kind == "yaw":
         return Alignment(kind, rot, trans, 1.0, m, evo)

@@ -202,7 +202,8 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
         lines += [f"The run's own record: {own_said(own)}.", ""]
     lines += [line for hint in report.get("hints") or [] for line in (f"Hint: {hint}.", "")]
     if report["evo"].get("ape"):
-        lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]
+        departs = f" Not this report's number: {report['evo']['departs']}." if report["evo"].get("departs") else ""
+        lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.{departs}", ""]
     by = report.get("ape_by_alignment") or {}
     if by:
         lines += ["### APE under each alignment (same pairs)", ""]

@@ -33,9 +33,9 @@ from slamobs.pipeline.evaluation.figure_jobs import (
     top_view_job,
     uncertainty_plot_jobs,
 )
-from slamobs.pipeline.evaluation.align import SCALED_ALIGNMENTS
+from slamobs.pipeline.evaluation.align import SCALED_ALIGNMENTS, apply_alignment
 from slamobs.pipeline.evaluation.markdown import extent_words, render_markdown
-from slamobs.pipeline.evaluation.metrics import MATRICES_KEPT_ROWS, rotated
+from slamobs.pipeline.evaluation.metrics import MATRICES_KEPT_ROWS, ape_translation, rotated
 from slamobs.pipeline.evaluation.sections import (
     EVO_ALIGN_FLAGS,
     ApeByAlignmentSection,
@@ -76,17 +76,36 @@ ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
 REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
 
 
-def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
+def _evo_commands(options: ReportOptions, ev: TrajectoryEvaluation) -> dict[str, str | None]:
     flags = EVO_ALIGN_FLAGS.get(options.align)
     if flags is None:
         return {"ape": None, "note": f"evo has no {options.align} alignment"}
-    off = f" --t_offset {applied_offset_s!r}" if applied_offset_s else ""
+    off = f" --t_offset {ev.applied_offset_s!r}" if ev.applied_offset_s else ""
     base = f"evo_ape tum {TRUTH_TUM} {ESTIMATE_TUM}{flags} --t_max_diff {options.t_max_diff_s!r}{off}"
     return {
         "ape": base,
         "ape_rotation": base + " -r angle_deg",
         "note": f"run in the run directory; the TUM files are written with --export tum, {EVO_ZIP} (the "
         f"translation result, evo_res {EVO_ZIP}) with --export evo",
+        **_evo_departs(ev),
+    }
+
+
+def _evo_departs(ev: TrajectoryEvaluation) -> dict[str, str]:
+    """``departs`` where the report's fit is not evo's (``Alignment.umeyama``: ``align.upright_fit`` kept the
+    estimate's up side up on a flat truth that evo's Umeyama turns over): the translation rmse evo gives on the
+    same pairs beside this report's; nothing elsewhere."""
+    um = ev.alignment.umeyama
+    if um is None:
+        return {}
+    p = ev.paired
+    scale = float(np.linalg.norm(um[:3, 0]))
+    moved = apply_alignment(um[:3, :3] / scale, um[:3, 3], scale, p.est_pos)
+    evo_rmse = float(np.sqrt(np.mean(np.square(ape_translation(p.ref_pos, moved)))))
+    return {
+        "departs": f"evo's Umeyama fit turns the estimate over on this flat truth (the APE section's note; "
+        f"align.upright_fit): evo_ape gives translation rmse about {evo_rmse:.4g} m, not this report's "
+        f"{float(ev.translation.stats['rmse']):.4g} m"
     }
 
 
@@ -283,7 +302,7 @@ def _report(sections: dict, ev: TrajectoryEvaluation, truth: PoseStream, options
             "truth_ns": [int(np.min(ev.truth.t_ns)), int(np.max(ev.truth.t_ns))],
         },
         "truth_source": {"kind": "stream", "name": truth.topic, "n_poses": len(truth)},
-        "evo": _evo_commands(options, ev.applied_offset_s),
+        "evo": _evo_commands(options, ev),
         "notes": notes,
         "options": {
             k: (list(v) if isinstance(v, tuple) else v)
