@@ -215,6 +215,11 @@ class Cleaning:
     zero_stamps: bool = False
     step_back_ns: int = 0  # the largest step back between consecutive stamps (record order)
     step_forward: tuple[int, int] = (0, 0)  # a header clock set forward: clock_step_forward, at from the first
+    #: (stamps 0, stamps) when some but not all header stamps are 0 (left unset by a publisher: each a step back to
+    #: the epoch, no clock), and the step back and forward of the set stamps alone (what a clock did)
+    unset: tuple[int, int] = (0, 0)
+    set_step_back_ns: int = 0
+    set_step_forward: tuple[int, int] = (0, 0)
     kept: int = 0  # samples left (clean_order's streams; 0: not counted)
     extra: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # said as warnings, apart from :meth:`text`
@@ -227,17 +232,38 @@ class Cleaning:
         self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
         step, at = clock_step_forward(t_ns, rec_ns)
         self.step_forward = (step, at - int(rec_ns.min())) if step else (0, 0)
+        zero = t_ns == 0
+        if zero.any() and not zero.all():
+            self.unset = (int(np.count_nonzero(zero)), int(t_ns.shape[0]))
+            steps = np.diff(t_ns[~zero])
+            self.set_step_back_ns = int(max(0, -steps.min())) if steps.size else 0
+            step, at = clock_step_forward(t_ns[~zero], rec_ns[~zero])
+            self.set_step_forward = (step, at - int(rec_ns.min())) if step else (0, 0)
 
     @property
     def clock_steps(self) -> bool:
         """Whether the header clock steps mid-log against record time (:func:`clock_steps`)."""
         return clock_steps(self.step_back_ns, self.step_forward[0]) and not self.zero_stamps
 
+    @property
+    def clock_set(self) -> bool:
+        """Whether a header clock steps (:attr:`clock_steps`) beyond stamps left 0 (:attr:`unset`): the set stamps
+        step too."""
+        if not self.unset[0]:
+            return self.clock_steps
+        return clock_steps(self.set_step_back_ns, self.set_step_forward[0])
+
     def clock_step_words(self) -> str:
-        """How the header clock steps (:attr:`clock_steps`): back, ahead, or both."""
-        words = [f"stamps step back {self.step_back_ns * 1e-9:.3f} s"] if self.step_back_ns >= CLOCK_STEP_NS else []
-        if self.step_forward[0]:
-            words.append(f"jump {self.step_forward[0] * 1e-9:.3f} s ahead {self.step_forward[1] * 1e-9:.1f} s in")
+        """How the header clock steps (:attr:`clock_steps`): stamps left 0 (named as such, not as a step back to
+        the epoch), back, ahead, or both."""
+        back, forward, words = self.step_back_ns, self.step_forward, []
+        if self.unset[0]:
+            back, forward = self.set_step_back_ns, self.set_step_forward
+            words.append(f"{self.unset[0]} of its {self.unset[1]} header stamps 0: left unset by its publisher?")
+        if back >= CLOCK_STEP_NS:
+            words.append(f"stamps step back {back * 1e-9:.3f} s")
+        if forward[0]:
+            words.append(f"jump {forward[0] * 1e-9:.3f} s ahead {forward[1] * 1e-9:.1f} s in")
         return ", ".join(words)
 
     def text(self, on_record_time: bool = False) -> str:
