@@ -13,6 +13,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round9 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
@@ -31,7 +32,10 @@ that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run y
 session 37's (``ROUND9``): a twist in wrong axes, slipping on turns or of a point ahead of the body, the IMU
 slower than the odometry, an id flipping, a truth starting late or drifting, a camera blind every other second, a
 gyro's scale or bias, 30 s, an aggressive flight, 2 landmarks for 5 min, coarse IMU stamps, a varying detection
-latency (docs/benchmarks.md, "Logs nobody has run yet, round 9").
+latency (docs/benchmarks.md, "Logs nobody has run yet, round 9"). ``--set round10``: session 38's (``ROUND10``): a
+stated camera extrinsic shifted or tilted, ids misread at random, one stream's clock stepping back, a few stamps 0, a
+slow walk, covariances stated wrong per stream, a twist in km/h, biased or thinned at random, a short-sighted camera,
+IMU stamps out of order or drifting, a vibrating gyro (docs/benchmarks.md, "Logs nobody has run yet, round 10").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
