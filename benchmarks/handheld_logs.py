@@ -13,6 +13,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round7 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round9 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
@@ -31,7 +32,10 @@ that only drives straight, two hours (docs/benchmarks.md, "Logs nobody has run y
 session 37's (``ROUND9``): a twist in wrong axes, slipping on turns or of a point ahead of the body, the IMU
 slower than the odometry, an id flipping, a truth starting late or drifting, a camera blind every other second, a
 gyro's scale or bias, 30 s, an aggressive flight, 2 landmarks for 5 min, coarse IMU stamps, a varying detection
-latency (docs/benchmarks.md, "Logs nobody has run yet, round 9").
+latency (docs/benchmarks.md, "Logs nobody has run yet, round 9"). ``--set round10``: session 38's (``ROUND10``): a
+stated camera extrinsic shifted or tilted, ids misread at random, one stream's clock stepping back, a few stamps 0, a
+slow walk, covariances stated wrong per stream, a twist in km/h, biased or thinned at random, a short-sighted camera,
+IMU stamps out of order or drifting, a vibrating gyro (docs/benchmarks.md, "Logs nobody has run yet, round 10").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
@@ -144,6 +148,22 @@ class Case:
     flight_period: float = 30.0  # the flight's figure 8 period (15: twice the speeds and rates)
     # session 37: the spin scenario turning at this constant rate (rad/s) from its first second, not 0.1-0.7
     spin_rate: float = 0.0
+    # round 10: a stated extrinsic off in translation or tilt, ids misread at random, one stream's clock stepping
+    # back, a few unset stamps, a slow walk, covariances stated wrong per stream, a twist biased, in km/h or thinned
+    # at random, a short-sighted camera, IMU stamps out of order or on a drifting clock, a vibrating gyro
+    tf_shift: tuple[float, float, float] = (0.0, 0.0, 0.0)  # added to the camera's stated position (the camera not)
+    tf_tilt_deg: tuple[float, float] = (0.0, 0.0)  # the camera's stated extrinsic turned about body x, then y
+    wrong_id: float = 0.0  # share of the detections carrying another landmark's id (NoiseModel.wrong_id)
+    det_step: tuple[float, float] | None = None  # (at s, back s): the detections' stamps (only) moved back from then
+    zero_share: tuple[str, float] | None = None  # (stream, share): that share of its header stamps 0
+    slow: float = 1.0  # the path walked this many times as fast (0.2: five times slower, same path)
+    stated_split: tuple[float, float] | None = None  # (gyro, velocity): each stream's covariance at x the truth
+    velocity_bias: tuple[float, float, float] = (0.0, 0.0, 0.0)  # added to the twist's linear velocity (m/s, body)
+    odom_keep: float = 1.0  # share of the odometry messages kept (at random: irregular intervals)
+    cam_range: float = 0.0  # the camera's detection range (m; 0: the scenario's)
+    imu_back: float = 0.0  # share of the IMU's stamps moved 50 ms back (out of order in its own stream)
+    imu_drift: float = 0.0  # the IMU's clock runs this much fast (its stamps' time since start times 1+x)
+    gyro_vibe: tuple[float, float] = (0.0, 0.0)  # (Hz, rad/s): a sinusoidal vibration on every gyro axis
 
 
 CASES = (
@@ -492,6 +512,30 @@ RESTRIEKF = (
         **R6,
     ),
 )
+#: round 10 (session 38, docs/benchmarks.md "Logs nobody has run yet, round 10"): a stated camera extrinsic 5 cm or 3
+#: deg off, 1 % of the ids misread, the detections' clock stepping back 1 s, 2 % of a stream's stamps unset, a walk
+#: five times slower for 10 min, 30 Hz noisy detections, covariances stated wrong per stream, a twist in km/h, biased
+#: 5 cm/s or 70 % of its messages lost at random, a camera seeing 2.5 m, IMU stamps out of order or drifting, a
+#: vibrating gyro
+ROUND10 = (
+    Case(4380, "handheld", 90, "camera extrinsic stated 5 cm off (x)", tf_shift=(0.05, 0.0, 0.0), **R6),
+    Case(4381, "flight", 90, "flight, camera extrinsic stated 3 deg off in pitch", tf_tilt_deg=(0.0, 3.0), **R6),
+    Case(4382, "handheld", 90, "1 % of detections carry another tag's id", "bag", wrong_id=0.01, **R6),
+    Case(4383, "handheld", 90, "detection stamps step back 1 s at 45 s", det_step=(45.0, 1.0), **R6),
+    Case(4384, "handheld", 90, "2 % of odometry stamps 0", zero_share=("odom", 0.02), **R6),
+    Case(4385, "ground", 180, "ground, 2 % of detection stamps 0", "ros2", zero_share=("detections", 0.02), **R6),
+    Case(4386, "handheld", 600, "walk 5x slower (0.1-0.3 m/s), 10 min", slow=0.2, **R6),
+    Case(4387, "handheld", 90, "30 Hz detections, sigma (0.1, 0.02)", detection_hz=30, law=(0.1, 0.02), **R6),
+    Case(4388, "handheld", 90, "gyro stated 1x, velocity stated 0.2x", stated_split=(1.0, 0.2), **R6),
+    Case(4389, "flight", 90, "flight, gyro stated 0.1x, velocity stated 3x", "bag", stated_split=(0.1, 3.0), **R6),
+    Case(4390, "ground", 180, "ground, twist in km/h (x3.6)", velocity_scale=3.6, **R6),
+    Case(4391, "handheld", 90, "twist biased 5 cm/s forward", velocity_bias=(0.05, 0.0, 0.0), **R6),
+    Case(4392, "ground", 180, "ground, 70 % of odometry lost at random", "bag", odom_keep=0.3, **R6),
+    Case(4393, "handheld", 90, "camera sees 2.5 m only", cam_range=2.5, **R6),
+    Case(4394, "flight", 90, "flight, 0.5 % of IMU stamps 50 ms back", "ros2", imu_back=0.005, **R6),
+    Case(4395, "handheld", 120, "IMU clock drifts 1e-3", imu_drift=1e-3, **R6),
+    Case(4396, "handheld", 90, "gyro vibrates 0.3 rad/s at 37 Hz", gyro_vibe=(37.0, 0.3), **R6),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -503,6 +547,7 @@ SETS = {
     "clipped2": CLIPPED2,
     "round9": ROUND9,
     "restriekf": RESTRIEKF,
+    "round10": ROUND10,
 }
 
 
@@ -559,6 +604,17 @@ def with_stops(base, stops: tuple[tuple[float, float], ...]):
     return trajectory
 
 
+def slowed(base, k: float):
+    """``base`` walked ``k`` times as fast (its path unchanged, its rates, speeds and accelerations scaled)."""
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        tr = base(k * t)
+        return replace(tr, t=t, omega=k * tr.omega, v=k * tr.v, accel=k * k * tr.accel)
+
+    return trajectory
+
+
 def scaled(sc, k: float):
     """``sc`` k times larger in space (path, speeds, landmarks, camera offset and range), its time unchanged."""
     base = sc.trajectory
@@ -592,6 +648,10 @@ def scenario(case: Case):
         sc = scaled(sc, case.scale)
     if case.stops:
         sc = replace(sc, trajectory=with_stops(sc.trajectory, case.stops))
+    if case.slow != 1.0:
+        sc = replace(sc, trajectory=slowed(sc.trajectory, case.slow))
+    if case.cam_range:
+        sc = replace(sc, camera=replace(sc.camera, max_range=case.cam_range))
     return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None, imu_rpy_deg=case.imu_rpy_deg)
 
 
@@ -789,6 +849,60 @@ def misdrawn9(sim, case: Case, sc):
     return replace(sim, **streams)
 
 
+def _turn(axis: int, deg: float) -> np.ndarray:
+    """The rotation by ``deg`` about body axis ``axis`` (0 x, 1 y, 2 z)."""
+    c, s = np.cos(np.deg2rad(deg)), np.sin(np.deg2rad(deg))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    r = np.eye(3)
+    r[i, i], r[i, j], r[j, i], r[j, j] = c, -s, s, c
+    return r
+
+
+def misdrawn10(sim, case: Case):
+    """Round 10's changes to the drawn log (from a generator of their own): the camera's stated extrinsic shifted or
+    tilted, the detections' clock stepping back, a share of a stream's stamps unset, the twist biased or thinned, IMU
+    stamps moved back or drifting, a vibrating gyro."""
+    rng = np.random.default_rng(case.seed + 19)
+    det, imu, odom = sim.detections, sim.imu, sim.odom
+    if any(case.velocity_bias):
+        odom = replace(odom, linear=odom.linear + np.asarray(case.velocity_bias, float))
+    if case.odom_keep < 1.0:
+        odom = _rows(odom, rng.random(len(odom.t_ns)) < case.odom_keep)
+    if any(case.gyro_vibe):
+        hz, amp = case.gyro_vibe
+        t = (imu.t_ns - sim.start_ns) * 1e-9
+        phase = rng.uniform(0.0, 2 * np.pi, 3)
+        imu = replace(imu, gyro=imu.gyro + amp * np.sin(2 * np.pi * hz * t[:, None] + phase))
+    if case.imu_back:
+        back = (rng.random(len(imu.t_ns)) < case.imu_back) * 50_000_000
+        imu = replace(imu, t_ns=imu.t_ns - back)
+    if case.imu_drift:
+        imu = replace(imu, t_ns=imu.t_ns + np.round((imu.t_ns - sim.start_ns) * case.imu_drift).astype(np.int64))
+    if case.det_step:
+        at, back = (int(round(x * 1e9)) for x in case.det_step)
+        det = replace(det, t_ns=np.where(det.t_ns >= sim.start_ns + at, det.t_ns - back, det.t_ns))
+    streams = {"imu": imu, "odom": odom, "detections": det}
+    if case.zero_share:
+        name, share = case.zero_share
+        d = streams[name]
+        streams[name] = replace(d, t_ns=np.where(rng.random(len(d.t_ns)) < share, 0, d.t_ns))
+    sim = replace(sim, **streams)
+    if any(case.tf_shift) or any(case.tf_tilt_deg):
+        turn = _turn(0, case.tf_tilt_deg[0]) @ _turn(1, case.tf_tilt_deg[1])
+        tfs = []
+        for tf in sim.static_tf:
+            if tf.child == FRAME_CAMERA:
+                r = turn @ quats_to_rots(tf.quat_xyzw[None])[0]
+                tf = replace(
+                    tf,
+                    quat_xyzw=rots_to_quats(np.ascontiguousarray(r[None]))[0],
+                    translation=np.asarray(tf.translation, float) + np.asarray(case.tf_shift, float),
+                )
+            tfs.append(tf)
+        sim = replace(sim, static_tf=tfs)
+    return sim
+
+
 def perturb(sim, case: Case):
     """What the simulator does not draw: the gyro bias's random walk, silent streams, jittered stamps (from their
     own generator, so the simulator's draws are those of the plain case)."""
@@ -825,6 +939,7 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
         odom_linear=velocity * np.sqrt(case.odom_hz),
         detection_base=case.law[0],
         detection_per_m=case.law[1],
+        wrong_id=case.wrong_id,
     )
     kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
     kw |= {"mocap_rate": case.truth_hz} if case.truth_hz != 100.0 else {}
@@ -833,7 +948,9 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
         sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, sampling=case.sampling, **kw
     )
     sim = misdrawn9(misdrawn8(misdrawn7(misdrawn(perturb(sim, case), case, sc), case), case), case, sc)
-    stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
+    sim = misdrawn10(sim, case)
+    gx, vx = case.stated_split or (case.stated, case.stated)
+    stated = replace(nm, gyro=gx * nm.gyro, odom_linear=vx * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
     if case.truncate:
         with open(path, "r+b") as f:

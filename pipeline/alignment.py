@@ -2195,9 +2195,9 @@ def _two_tags_one_id(det: DetectionStream, frame_of: np.ndarray, rows: np.ndarra
     (a generated figure 8 with one tag's id given to another: that landmark gone from the map, 39 of its detections
     taken as the other's, and only the note of the repeats dropped)."""
     camera = None if det.camera_of is None else det.camera_of[rows]
-    ids, apart = far_repeats(frame_of[rows], det.ids[rows], det.xyz[rows], camera)
+    ids, apart, seen = far_repeats(frame_of[rows], det.ids[rows], det.xyz[rows], camera)
     if ids.size:
-        notes.append(f"warning: {det.topic}: {shared_id_text(ids, apart)}")
+        notes.append(f"warning: {det.topic}: {shared_id_text(ids, apart, seen)}")
 
 
 def _rank_in(frames: np.ndarray, n: int) -> np.ndarray:

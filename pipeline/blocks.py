@@ -101,10 +101,12 @@ REPEATED_ID_APART_M = 0.25
 
 def far_repeats(
     frame: np.ndarray, ids: np.ndarray, xyz: np.ndarray, camera: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, int]:
     """The ids and distances of the repeated ids within a frame (and camera) that lie apart from the detection
     before them of their frame and id (``REPEATED_ID_APART``): two tags that share the id, whose landmark's
-    detections would mix two places. The readers and the alignment drop the repeats; both say this."""
+    detections would mix two places, or another tag's id misread there; and the number of frames that hold any of
+    those ids (how many of them hold it twice tells the two apart). The readers and the alignment drop the
+    repeats; both say this."""
     order = np.lexsort((np.arange(ids.shape[0]), ids, frame))
     same = (frame[order][1:] == frame[order][:-1]) & (ids[order][1:] == ids[order][:-1])
     kept, dup = order[:-1][same], order[1:][same]
@@ -113,7 +115,8 @@ def far_repeats(
         kept, dup = kept[one], dup[one]
     apart = np.linalg.norm(xyz[dup] - xyz[kept], axis=1)
     far = apart > np.maximum(REPEATED_ID_APART * np.linalg.norm(xyz[kept], axis=1), REPEATED_ID_APART_M)
-    return ids[dup[far]], apart[far]
+    seen = int(np.unique(frame[np.isin(ids, ids[dup[far]])]).size) if far.any() else 0
+    return ids[dup[far]], apart[far], seen
 
 
 def finite_rows(x: np.ndarray) -> np.ndarray:

@@ -331,6 +331,27 @@ def test_a_clock_set_back_or_forward_mid_log_is_read_on_record_time_by_default(t
     assert read_log(_write(tmp_path / "steady.mcap", {"/imu": steady})).clocks == {}
 
 
+def test_header_stamps_left_0_on_a_few_messages_are_named_so_not_as_a_clock_set_back(tmp_path):
+    """2 % of a topic's header stamps 0 among set ones (a publisher that left some unset; round 10's seed=4384):
+    the run read record time, right, but said `header clock set back or forward mid-log (/odom: stamps step back
+    1700000088.701 s)`, a clock the log does not have; it now names the stamps left 0, and a clock that also steps
+    among the set stamps is still named."""
+    steady = _steady(100, 4, 0)
+    unset = [(0 if k % 50 == 25 else stamp, rec, value) for k, (stamp, rec, value) in enumerate(steady)]
+    streams = read_log(_write(tmp_path / "unset.mcap", {"/imu": unset}))
+    assert streams.clocks == {"/imu": "record"}
+    said = [w for w in streams.warnings if "header" in w and "record time for every topic" in w]
+    assert len(said) == 1 and said[0].startswith(
+        "warning: some header stamps 0 (/imu: 8 of its 400 header stamps 0: left unset by its publisher?): "
+    ), said
+    back = unset[:200] + [(stamp and stamp - 5 * NS, rec, value) for stamp, rec, value in unset[200:]]
+    said = [w for w in read_log(_write(tmp_path / "both.mcap", {"/imu": back})).warnings if "mid-log" in w]
+    assert (
+        len(said) == 1
+        and "(/imu: 8 of its 400 header stamps 0: left unset by its publisher?, stamps step back" in said[0]
+    )
+
+
 def test_clocks_set_back_together_are_said_to_step_not_to_disagree(tmp_path):
     """Every header clock set back 5 s mid-log (an NTP step on the recording machine): the topics' median offsets
     fall on either side of the step, and info said 'header clocks disagree' with the reference's offset, as if

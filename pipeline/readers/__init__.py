@@ -582,12 +582,14 @@ def _odometry_twist(
 _HEADER_READ = "this run reads header stamps (time.source: header): time.source: auto takes that advice"
 
 
-def _stepped(reports: Mapping[str, list[tuple[str, Cleaning]]]) -> dict[str, str]:
-    """The topics whose header clock steps mid-log (:attr:`Cleaning.clock_steps`) and how."""
-    return {t: c.clock_step_words() for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps}
+def _stepped(reports: Mapping[str, list[tuple[str, Cleaning]]]) -> dict[str, Cleaning]:
+    """The topics whose header clock steps mid-log (:attr:`Cleaning.clock_steps`) and their cleaning."""
+    return {t: c for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps}
 
 
-def _clocked(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
+def _clocked(
+    streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, Cleaning]
+) -> LogStreams:
     """:func:`_with_clocks`, then a recording clock set back mid-log said, on the clocks the run reads
     (:func:`.inspect.clock_set_back`)."""
     streams = _with_clocks(streams, clocks, stepped)
@@ -595,16 +597,20 @@ def _clocked(streams: LogStreams, clocks: str | Mapping[str, str] | None, steppe
     return streams
 
 
-def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
+def _with_clocks(
+    streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, Cleaning]
+) -> LogStreams:
     """``streams`` on the clocks chosen; ``stepped``: the topics whose header clock steps mid-log
     (:func:`decode.clock_steps`) and how, read on record time, every topic with them, when header stamps would be
     read."""
     if clocks == "record":  # the alignment reads every record time
         return streams
     if (clocks is None or clocks == "header") and stepped:
-        said = "; ".join(f"{t}: {how}" for t, how in stepped.items())
+        said = "; ".join(f"{t}: {c.clock_step_words()}" for t, c in stepped.items())
+        clock = any(c.clock_set for c in stepped.values())  # else only stamps left 0 step
+        what = "header clock set back or forward mid-log" if clock else "some header stamps 0"
         streams.warnings.append(
-            f"warning: header clock set back or forward mid-log ({said}): this run reads record time for every "
+            f"warning: {what} ({said}): this run reads record time for every "
             "topic (time.source: header reads header stamps only where no clock steps; time.topics: "
             f"{{{next(iter(stepped))}: header}} reads them anyway)"
         )

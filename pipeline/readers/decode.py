@@ -215,6 +215,11 @@ class Cleaning:
     zero_stamps: bool = False
     step_back_ns: int = 0  # the largest step back between consecutive stamps (record order)
     step_forward: tuple[int, int] = (0, 0)  # a header clock set forward: clock_step_forward, at from the first
+    #: (stamps 0, stamps) when some but not all header stamps are 0 (left unset by a publisher: each a step back to
+    #: the epoch, no clock), and the step back and forward of the set stamps alone (what a clock did)
+    unset: tuple[int, int] = (0, 0)
+    set_step_back_ns: int = 0
+    set_step_forward: tuple[int, int] = (0, 0)
     kept: int = 0  # samples left (clean_order's streams; 0: not counted)
     extra: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)  # said as warnings, apart from :meth:`text`
@@ -227,17 +232,38 @@ class Cleaning:
         self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
         step, at = clock_step_forward(t_ns, rec_ns)
         self.step_forward = (step, at - int(rec_ns.min())) if step else (0, 0)
+        zero = t_ns == 0
+        if zero.any() and not zero.all():
+            self.unset = (int(np.count_nonzero(zero)), int(t_ns.shape[0]))
+            steps = np.diff(t_ns[~zero])
+            self.set_step_back_ns = int(max(0, -steps.min())) if steps.size else 0
+            step, at = clock_step_forward(t_ns[~zero], rec_ns[~zero])
+            self.set_step_forward = (step, at - int(rec_ns.min())) if step else (0, 0)
 
     @property
     def clock_steps(self) -> bool:
         """Whether the header clock steps mid-log against record time (:func:`clock_steps`)."""
         return clock_steps(self.step_back_ns, self.step_forward[0]) and not self.zero_stamps
 
+    @property
+    def clock_set(self) -> bool:
+        """Whether a header clock steps (:attr:`clock_steps`) beyond stamps left 0 (:attr:`unset`): the set stamps
+        step too."""
+        if not self.unset[0]:
+            return self.clock_steps
+        return clock_steps(self.set_step_back_ns, self.set_step_forward[0])
+
     def clock_step_words(self) -> str:
-        """How the header clock steps (:attr:`clock_steps`): back, ahead, or both."""
-        words = [f"stamps step back {self.step_back_ns * 1e-9:.3f} s"] if self.step_back_ns >= CLOCK_STEP_NS else []
-        if self.step_forward[0]:
-            words.append(f"jump {self.step_forward[0] * 1e-9:.3f} s ahead {self.step_forward[1] * 1e-9:.1f} s in")
+        """How the header clock steps (:attr:`clock_steps`): stamps left 0 (named as such, not as a step back to
+        the epoch), back, ahead, or both."""
+        back, forward, words = self.step_back_ns, self.step_forward, []
+        if self.unset[0]:
+            back, forward = self.set_step_back_ns, self.set_step_forward
+            words.append(f"{self.unset[0]} of its {self.unset[1]} header stamps 0: left unset by its publisher?")
+        if back >= CLOCK_STEP_NS:
+            words.append(f"stamps step back {back * 1e-9:.3f} s")
+        if forward[0]:
+            words.append(f"jump {forward[0] * 1e-9:.3f} s ahead {forward[1] * 1e-9:.1f} s in")
         return ", ".join(words)
 
     def text(self, on_record_time: bool = False) -> str:
@@ -715,14 +741,19 @@ def _clean_detections(
     return DetectionStream(topic, frame_id, t_ns, rec_ns, offsets, ids, xyz), cleaning
 
 
-def shared_id_text(ids: np.ndarray, apart: np.ndarray) -> str:
-    """The warning on repeated ids within a frame that lie apart (:func:`blocks.far_repeats`), without its topic."""
+def shared_id_text(ids: np.ndarray, apart: np.ndarray, seen: int) -> str:
+    """The warning on repeated ids within a frame that lie apart (:func:`blocks.far_repeats`), without its topic;
+    ``seen``: the frames that hold those ids. Two tags on one id repeat in every frame that sees both; an id
+    misread repeats where the misread tag is in view beside the one whose id it took (1 % of the ids misread at
+    random: id 33 twice in 1 of the 217 frames holding it, and the warning named only two tags sharing the id),
+    so both are named."""
     ids = np.unique(ids)
     return (
         f"id{'s' if ids.size > 1 else ''} {', '.join(str(v) for v in ids[:5])}{' ...' if ids.size > 5 else ''} seen "
-        f"twice in {apart.size} frames, {float(np.median(apart)):.3g} m apart (median): two tags share the id (two tag "
-        "families or dictionaries, or an id reused), so its landmark's detections mix two places; the second of each "
-        "frame is dropped, the rest used as read: give the tags distinct ids (or read one family only)"
+        f"twice in {apart.size} of the {seen} frames holding it, {float(np.median(apart)):.3g} m apart (median): two "
+        "tags share the id (two tag families or dictionaries, or an id reused), so its landmark's detections mix two "
+        "places, or another tag's id was misread there (a decoding error; then only those detections are wrong); the "
+        "second of each frame is dropped, the rest used as read: give the tags distinct ids (or read one family only)"
     )
 
 
@@ -754,9 +785,9 @@ def clean_frames(
     if nsame := int(np.count_nonzero(same)):
         cleaning.extra.append(plural(nsame, "repeated id") + " within a frame dropped")
         if values.ndim == 2 and values.shape[1] == 3:  # positions (not corners): two tags sharing an id said
-            far_ids, apart = far_repeats(owner, ids, values)
+            far_ids, apart, seen = far_repeats(owner, ids, values)
             if far_ids.size:
-                cleaning.warnings.append(shared_id_text(far_ids, apart))
+                cleaning.warnings.append(shared_id_text(far_ids, apart, seen))
         ids, values, flat, owner = ids[~same], values[~same], flat[~same], owner[~same]
     del same
     lengths = np.bincount(owner, minlength=nframes).astype(np.int64)
