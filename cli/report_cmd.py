@@ -187,13 +187,13 @@ def _reported(
     other input error ends the command (exit 2)."""
     from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError, TruthUnusable
-    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
+    from slamobs.pipeline.evaluation.trajectory_evaluation import TUPLE_OPTIONS, ReportOptions
     from slamobs.pipeline.evaluation.run_dir import options_for_run, report_plots, report_run, run_meta
 
     try:
         meta = run_meta(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
-        for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+        for key in TUPLE_OPTIONS:
             if base.get(key) is not None:
                 base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
