@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -198,6 +199,8 @@ def _reported(
                 base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
         options = options_for_run(meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
+        if truth is not None:  # another truth than the run's: the frame run.json names is its truth's, not this one's
+            options = replace(options, truth_in_body=None)
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
             drawing = " and drawing the figures" if report_plots(meta, plots) else ""
             progress(f"report: evaluating{drawing}")

@@ -1235,16 +1235,27 @@ def truth_frame_in_body(tf: TfBuffer, body: str, truth: PoseStream | None, state
     }
 
 
-def truth_body_note(body: str, truth_body: dict | None) -> list[str]:
+def truth_body_note(body: str, truth_body: dict | None, still_turned: bool = False) -> list[str]:
     """The run's note that the report compares the truth carried from its own frame to the body
-    (:func:`truth_frame_in_body`'s ``truth_body``), with how TF places that frame; empty without one."""
+    (:func:`truth_frame_in_body`'s ``truth_body``), with how TF places that frame; empty without one. The report
+    adds, where the carried truth still looks turned (``still_turned``: its ``ape.truth_frame_turn``) and the frame
+    was the message's, that the child_frame_id may name another frame than its poses' (TagSLAM's
+    ``/tagslam/odom/body_rig`` names the odometry's frame and holds the rig's poses: with ``frames.body: rig`` it was
+    carried 120 deg the wrong way, batch rotation APE 116 deg) and the key that states the right one."""
     if not truth_body:
         return []
-    return [
+    note = (
         f"the truth is of the frame '{truth_body['frame']}' ({truth_body['from']}), which TF places on the body frame "
         f"'{body}' ({truth_body['placed']}): the report carries the truth by that transform to the body before "
         "comparing (truth_tum.txt holds it so carried)"
-    ]
+    )
+    if still_turned and truth_body["from"] == TRUTH_FRAME_FROM_MESSAGE:
+        note += (
+            "; carried so, it still looks turned (the rotation APE's note): the child_frame_id may not name the frame "
+            "its poses are of (TagSLAM's reference names the odometry's frame and holds the rig's poses); "
+            "frames.truth: FRAME states it (frames.truth: BODY compares it as it is)"
+        )
+    return [note]
 
 
 def align(

@@ -4,6 +4,7 @@ explains it (hand–eye on the aligned trajectories) and the config key that app
 
 from __future__ import annotations
 
+import copy
 import json
 import re
 
@@ -663,23 +664,17 @@ def _truth_of_a_marker(src, dst):
                 ]
             elif ch.topic == TOPIC_MOCAP:
                 p, o = m.pose.position, m.pose.orientation
+                wrong = _as_odometry(ts, m, "marker")  # the body's poses under the marker's name (TagSLAM's mislabel)
+                data = bytes(ts.serialize_cdr(wrong, "nav_msgs/msg/Odometry"))
+                writer.add_message(
+                    channel("/wrong/odom", odom_schema), log_time=msg.log_time, data=data, publish_time=msg.publish_time
+                )
                 r_b = quat_to_rot(np.array([o.x, o.y, o.z, o.w]))
                 pm = np.array([p.x, p.y, p.z]) + r_b @ MARKER_AT
                 qm = rots_to_quats((r_b @ r_bm)[None])[0]
                 p.x, p.y, p.z = (float(v) for v in pm)
                 o.x, o.y, o.z, o.w = (float(v) for v in qm)
-                odom = ts.types["nav_msgs/msg/Odometry"](
-                    header=m.header,
-                    child_frame_id="marker",
-                    pose=ts.types["geometry_msgs/msg/PoseWithCovariance"](pose=m.pose, covariance=np.zeros(36)),
-                    twist=ts.types["geometry_msgs/msg/TwistWithCovariance"](
-                        twist=ts.types["geometry_msgs/msg/Twist"](
-                            linear=ts.types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                            angular=ts.types["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                        ),
-                        covariance=np.zeros(36),
-                    ),
-                )
+                odom = _as_odometry(ts, m, "marker")
                 data = bytes(ts.serialize_cdr(odom, "nav_msgs/msg/Odometry"))
                 writer.add_message(
                     channel("/marker/odom", odom_schema),
@@ -693,6 +688,20 @@ def _truth_of_a_marker(src, dst):
             )
         writer.finish()
     return dst
+
+
+def _as_odometry(ts, pose_stamped, child: str):
+    """``pose_stamped`` as a nav_msgs/Odometry naming ``child`` (no twist)."""
+    t = ts.types
+    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    return t["nav_msgs/msg/Odometry"](
+        header=pose_stamped.header,
+        child_frame_id=child,
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=copy.deepcopy(pose_stamped.pose), covariance=np.zeros(36)),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
+        ),
+    )
 
 
 def test_a_truth_of_a_frame_static_tf_places_on_the_body_is_carried_to_the_body(tmp_path):
@@ -709,6 +718,8 @@ def test_a_truth_of_a_frame_static_tf_places_on_the_body_is_carried_to_the_body(
         "clean": (clean, f"{topics}/mocap/pose\n"),
         "odometry": (log, f"{topics}/marker/odom\n"),
         "stated": (log, f"{topics}/mocap/pose\nframes:\n  truth: marker\n"),
+        "mislabelled": (log, f"{topics}/wrong/odom\n"),
+        "mislabel_stated": (log, f"{topics}/wrong/odom\nframes:\n  truth: base_link\n"),
     }
     reports = {}
     for name, (path, cfg) in runs.items():
@@ -734,6 +745,15 @@ def test_a_truth_of_a_frame_static_tf_places_on_the_body_is_carried_to_the_body(
         assert reports[name]["options"]["truth_in_body"] == [*record["translation"], *record["quat_xyzw"]]
         note = [n for n in reports[name]["notes"] if n.startswith("the truth is of the frame 'marker'")]
         assert len(note) == 1 and note[0] in (tmp_path / name / "report.md").read_text(), reports[name]["notes"]
+    # a child_frame_id that names another frame than its poses' (TagSLAM's) is carried the wrong way: said, with the key
+    wrong = reports["mislabelled"]
+    assert wrong["ape"]["truth_frame_turn"] is not None and wrong["ape"]["rotation_deg"]["rmse"] > 60
+    note = [n for n in wrong["notes"] if n.startswith("the truth is of the frame 'marker'")]
+    assert len(note) == 1 and "the child_frame_id may not name the frame its poses are of" in note[0], wrong["notes"]
+    assert not any("may not name" in n for r in ("odometry", "stated") for n in reports[r]["notes"])
+    stated = reports["mislabel_stated"]  # frames.truth: the body's own name compares it as it is
+    assert stated["ape"]["translation_m"]["rmse"] == pytest.approx(base["translation_m"]["rmse"], rel=1e-6, abs=1e-9)
+    assert stated["options"].get("truth_in_body") is None
     assert reports["clean"]["options"].get("truth_in_body") is None
     assert json.loads((tmp_path / "clean" / "run.json").read_text())["input"]["truth_body"] is None
     # a stated frame static TF does not place is an error, not a silent comparison

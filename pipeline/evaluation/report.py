@@ -503,7 +503,8 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
         from slamobs.pipeline.alignment import truth_body_note
 
         run_input = metadata.get("input") or {}
-        report.setdefault("notes", []).extend(truth_body_note(run_input["body_frame"], run_input["truth_body"]))
+        turned = bool(report["ape"].get("truth_frame_turn"))
+        report.setdefault("notes", []).extend(truth_body_note(run_input["body_frame"], run_input["truth_body"], turned))
     if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []
