@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -187,17 +188,19 @@ def _reported(
     other input error ends the command (exit 2)."""
     from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError, TruthUnusable
-    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
+    from slamobs.pipeline.evaluation.trajectory_evaluation import TUPLE_OPTIONS, ReportOptions
     from slamobs.pipeline.evaluation.run_dir import options_for_run, report_plots, report_run, run_meta
 
     try:
         meta = run_meta(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
-        for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+        for key in TUPLE_OPTIONS:
             if base.get(key) is not None:
                 base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
         options = options_for_run(meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
+        if truth is not None:  # another truth than the run's: the frame run.json names is its truth's, not this one's
+            options = replace(options, truth_in_body=None)
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
             drawing = " and drawing the figures" if report_plots(meta, plots) else ""
             progress(f"report: evaluating{drawing}")

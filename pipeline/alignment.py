@@ -48,6 +48,7 @@ from slamobs.pipeline.blocks import (
 )
 from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.frames import TfBuffer
+from slamobs.pipeline.lie import rot_to_quat
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, shared_id_text, stamp_pace
 from slamobs.pipeline.readers.inspect import GAP_FACTOR
 from slamobs.pipeline.readers.roles import (
@@ -405,6 +406,9 @@ class AlignedStream:
     #: how (:func:`_base_frame`), or None (run.json ``input.base_frame``; the report names it where the truth looks
     #: turned).
     base_frame: dict | None = None
+    #: The frame the truth's poses are of, where it is not the body and static TF places it on the body
+    #: (:func:`truth_frame_in_body`; run.json ``input.truth_body``), or None: the report carries the truth to the body.
+    truth_body: dict | None = None
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
     #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
     segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -1158,13 +1162,17 @@ def body_frame_note(body: str, origin: str) -> str:
     )
 
 
+#: where a static transform :func:`_describe` words comes from (the log's /tf_static and the cameras: files' rig
+#: transforms, run.prepare_log)
+STATIC_FROM = "static, from /tf_static or the cameras: files: "
+
+
 def _base_frame(tf: TfBuffer, body: str) -> dict | None:
     """The first base frame (``BASE_FRAMES``) TF connects to ``body`` and how TF places it (``frame``, ``placed``:
     :func:`_describe`'s words), or None (run.json ``input.base_frame``)."""
     for base in BASE_FRAMES:
         if base in tf.frames and tf.chain(base, body) is not None:
-            # the static edges are the log's /tf_static and the cameras: files' rig transforms (run.prepare_log)
-            how = _describe(tf, base, body, static="static, from /tf_static or the cameras: files: ")
+            how = _describe(tf, base, body, static=STATIC_FROM)
             return {"frame": base, "placed": how}
     return None
 
@@ -1186,10 +1194,75 @@ def base_placed_note(body: str, base: dict | None) -> list[str]:
     ]
 
 
+#: why :func:`truth_frame_in_body` took a frame as the truth's: the config's key, or the truth message's own
+TRUTH_FRAME_FROM_CONFIG = "frames.truth"
+TRUTH_FRAME_FROM_MESSAGE = "the truth's child_frame_id"
+
+
+def truth_frame_in_body(tf: TfBuffer, body: str, truth: PoseStream | None, stated: str | None) -> dict | None:
+    """The frame the truth's poses are of and its pose in the body frame, where that frame is not the body: ``stated``
+    (``frames.truth``), else the truth message's child_frame_id (an Odometry's, a TF pair's; a PoseStamped names
+    none). A truth of another frame compared with the body's poses is a silent wrong comparison: its rotation APE is
+    the frames' turn and its translation APE holds the lever arm swung by the rotation (TagSLAM test 22, whose
+    truth is of the rig and whose body is the T265's frame: rotation APE 110 deg). Static transforms only (a frame
+    that moves on the body has no one transform to carry the truth by): a child frame TF does not place so keeps
+    today's comparison (the report's ``truth_frame_turn`` note, ``frames.truth_rotation``, are its fallback); a
+    stated frame it does not place is an error. Returns ``{"frame", "from", "translation", "quat_xyzw"}`` (the
+    frame's origin in the body and its rotation, ``x_body = R x_frame + t``; run.json ``input.truth_body``) or None.
+
+    Raises:
+        InputError: ``stated`` is a frame static TF does not connect to the body.
+    """
+    frame = (stated or (truth.child_frame_id if truth is not None else "") or "").lstrip("/")
+    if not frame or frame == body:
+        return None
+    found = tf.static_lookup(body, frame)
+    if found is None:
+        if stated:
+            raise InputError(
+                truth.topic if truth is not None else "frames.truth",
+                f"frames.truth: '{frame}' is not placed on the body frame '{body}' by static transforms (/tf_static, "
+                f"the cameras: files): the truth cannot be carried to the body ({tf.explain(body, frame)})",
+            )
+        return None
+    rot, trans = found
+    return {
+        "frame": frame,
+        "from": TRUTH_FRAME_FROM_CONFIG if stated else TRUTH_FRAME_FROM_MESSAGE,
+        "placed": _describe(tf, body, frame, static=STATIC_FROM),
+        "translation": [float(v) for v in trans],
+        "quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(rot))],
+    }
+
+
+def truth_body_note(body: str, truth_body: dict | None, still_turned: bool = False) -> list[str]:
+    """The run's note that the report compares the truth carried from its own frame to the body
+    (:func:`truth_frame_in_body`'s ``truth_body``), with how TF places that frame; empty without one. The report
+    adds, where the carried truth still looks turned (``still_turned``: its ``ape.truth_frame_turn``) and the frame
+    was the message's, that the child_frame_id may name another frame than its poses' (TagSLAM's
+    ``/tagslam/odom/body_rig`` names the odometry's frame and holds the rig's poses: with ``frames.body: rig`` it was
+    carried 120 deg the wrong way, batch rotation APE 116 deg) and the key that states the right one."""
+    if not truth_body:
+        return []
+    note = (
+        f"the truth is of the frame '{truth_body['frame']}' ({truth_body['from']}), which TF places on the body frame "
+        f"'{body}' ({truth_body['placed']}): the report carries the truth by that transform to the body before "
+        "comparing (truth_tum.txt holds it so carried)"
+    )
+    if still_turned and truth_body["from"] == TRUTH_FRAME_FROM_MESSAGE:
+        note += (
+            "; carried so, it still looks turned (the rotation APE's note): the child_frame_id may not name the frame "
+            "its poses are of (TagSLAM's reference names the odometry's frame and holds the rig's poses); "
+            "frames.truth: FRAME states it (frames.truth: BODY compares it as it is)"
+        )
+    return [note]
+
+
 def align(
     streams: LogStreams,
     *,
     body_frame: str | None = None,
+    truth_frame: str | None = None,
     time_source: str = "header",
     identity_frames: tuple[str, ...] = (),
     override_identity: tuple[str, ...] = (),
@@ -1212,6 +1285,7 @@ def align(
     part starts; the notes come in the order velocities, detections, directions. ``limits`` are the
     plausibility gates and ``max_gap`` (default ``DEFAULT_LIMITS``; a None entry switches one off).
     ``warn_only_later=True`` leaves the :class:`WarnOnly` checks to the caller (``AlignedStream.warn_only``).
+    ``truth_frame`` (``frames.truth``) names the frame the truth is of (:func:`truth_frame_in_body`).
     """
     lim = {**DEFAULT_LIMITS, **(limits or {})}
     check_required(streams)
@@ -1221,6 +1295,7 @@ def align(
     body_from = body_frame_origin(lv, body_frame, lv.topic if lv is not None else None)
     frame, dir_frame = _checked_frames(streams, body_frame, time_source, identity_frames, override_identity)
     tf, body = frame.tf, frame.body
+    truth_body = truth_frame_in_body(tf, body, streams.truth, truth_frame)
 
     warn = WarnOnly()
     accel, magnetic, gyro_moved_s = streams.accel, streams.magnetic, 0.0
@@ -1268,6 +1343,7 @@ def align(
     if body_from not in (BODY_FROM_CONFIG, BODY_FROM_DEFAULT) and body not in BASE_FRAMES:
         base = _base_frame(tf, body)
         notes[:0] = [body_frame_note(body, body_from), *base_placed_note(body, base)]  # an odometry's child frame
+    notes += truth_body_note(body, truth_body)
     if w is not None:
         notes.append(_accel_weights_note(w))
     notes = warn.placed(notes)
@@ -1287,6 +1363,7 @@ def align(
         notes=notes,
         body_from=body_from,
         base_frame=base,
+        truth_body=truth_body,
         directions=directions if keep_directions else None,
         segment_starts=starts,
         det_sensor=det_sensor,

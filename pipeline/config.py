@@ -55,6 +55,9 @@ class FramesConfig:
     override_identity: tuple[str, ...] = ()
     tag_pattern: str | None = None
     marker_namespace: str | None = None
+    #: the frame the truth's poses are of (default: the truth message's child_frame_id): the report carries the truth
+    #: to the body by static TF (alignment.truth_frame_in_body)
+    truth: str | None = None
     #: quaternion (x, y, z, w) of the truth's body frame in the estimate's: applied to the truth in evaluation only
     truth_rotation: tuple[float, float, float, float] | None = None
 

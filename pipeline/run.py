@@ -379,6 +379,7 @@ def prepare_log(
     aligned = align(
         streams,
         body_frame=config.frames.body,
+        truth_frame=config.frames.truth,
         time_source=config.align_time_source,
         identity_frames=config.frames.assume_identity,
         override_identity=config.frames.override_identity,
@@ -602,6 +603,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "body_frame": aligned.body_frame,
             "body_frame_from": aligned.body_from,
             "base_frame": aligned.base_frame,
+            "truth_body": aligned.truth_body,
             # a saturating gyro's stretches (AlignedStream.gyro_clipped): the verdict of an observer integrating them
             "gyro_clipped": (
                 {
@@ -1187,7 +1189,12 @@ def offset_beside(prepared: PreparedLog, config: RunConfig):
     observer, whose kernel leaves the second core idle but for the writer (docs/benchmarks.md, session 18); returns
     the function that gives it (waits for it). A log of more samples than ``OFFSET_BESIDE_SAMPLES`` (its buffers
     would add to the run's peak), or no room for the thread, has it searched when the report asks."""
-    from slamobs.pipeline.evaluation.trajectory_evaluation import OFFSET_BESIDE_SAMPLES, Pending, log_time_offset
+    from slamobs.pipeline.evaluation.trajectory_evaluation import (
+        OFFSET_BESIDE_SAMPLES,
+        Pending,
+        log_time_offset,
+        truth_in_body,
+    )
 
     aligned, truth = prepared.aligned, truth_on_run_clock(prepared.streams, config)
     search = cache(  # the report asks twice: to check it, and for run.json's record
@@ -1198,6 +1205,7 @@ def offset_beside(prepared: PreparedLog, config: RunConfig):
             aligned.omega,
             aligned.velocity,
             truth_rotation_xyzw=config.frames.truth_rotation,
+            truth_in_body=truth_in_body(aligned.truth_body),
         )
     )
     if aligned.vel_t_ns.shape[0] + len(truth) > OFFSET_BESIDE_SAMPLES:
@@ -1344,15 +1352,15 @@ def _report_tables(out: Path, tables: dict | None) -> dict:
 
 def _report_options(config: RunConfig, metadata: dict):
     """The report's options from the run's config. Observers that measure gravity fix roll and pitch: written in
-    the gravity frame, the report adds the 4-DoF (translation + yaw) alignment."""
-    from slamobs.pipeline.evaluation import ReportOptions
-    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
+    the gravity frame, the report adds the 4-DoF (translation + yaw) alignment; a truth of another frame placed on
+    the body is carried to it (:func:`.evaluation.run_dir.options_for_run` reads both from run.json)."""
+    from slamobs.pipeline.evaluation.run_dir import options_for_run
 
-    return ReportOptions(
+    return options_for_run(
+        metadata,
         t_max_diff_s=config.evaluation.t_max_diff,
         convergence_threshold_m=config.evaluation.convergence_threshold,
-        **({"align": config.evaluation.align} if config.evaluation.align else {}),
-        gravity_aligned=gravity_aligned(metadata),
+        align=config.evaluation.align or None,
         truth_rotation_xyzw=config.frames.truth_rotation,
     )
 

@@ -4,6 +4,7 @@ explains it (hand–eye on the aligned trajectories) and the config key that app
 
 from __future__ import annotations
 
+import copy
 import json
 import re
 
@@ -611,3 +612,153 @@ def test_a_run_the_truth_finds_lost_says_so_in_a_warning_line(sim, tmp_path):
     report, meta = (json.loads((out / f).read_text()) for f in ("report.json", "run.json"))
     assert not report["convergence"]["lost"]
     assert not any(n.startswith(said) for n in meta["notes"] + report["notes"])
+
+
+#: A motion-capture marker on the body: 120 deg about (1, -1, 1) (the turn of TagSLAM test 22's rig against the T265's
+#: frame) and a lever arm, as static TF places it (``x_body = R x_marker + t``).
+MARKER_XYZW = np.array([0.5, -0.5, 0.5, 0.5])
+MARKER_AT = np.array([0.25, -0.15, 0.1])
+
+
+def _truth_of_a_marker(src, dst):
+    """The simulated MCAP ``src`` whose truth is a marker's, not the body's: /tf_static gains base_link -> marker
+    (``MARKER_XYZW``, ``MARKER_AT``), /mocap/pose holds the marker's poses (``R_m = R_b R``, ``p_m = p_b + R_b t``)
+    and /marker/odom the same poses as an Odometry whose child_frame_id names the marker."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+    from slamobs.pipeline.simulate.sensors import TOPIC_MOCAP, TOPIC_TF_STATIC
+
+    ts, r_bm = make_typestore(False), quat_to_rot(MARKER_XYZW)
+    with src.open("rb") as fin, dst.open("wb") as fout:
+        writer = Writer(fout)
+        writer.start(profile="ros2", library="slamobs-tests")
+        summary = make_reader(fin).get_summary()
+        fin.seek(0)
+        schemas, channels = {}, {}
+
+        def channel(topic, schema):
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if topic not in channels:
+                channels[topic] = writer.register_channel(topic, "cdr", schemas[schema.id])
+            return channels[topic]
+
+        odom_schema = next(s for s in summary.schemas.values() if s.name == "nav_msgs/msg/Odometry")
+        for schema, ch, msg in make_reader(fin).iter_messages():
+            m = ts.deserialize_cdr(msg.data, schema.name)
+            if ch.topic == TOPIC_TF_STATIC:
+                edge = m.transforms[0]
+                q, t = MARKER_XYZW, MARKER_AT
+                m.transforms = [
+                    *m.transforms,
+                    type(edge)(
+                        header=type(edge.header)(stamp=edge.header.stamp, frame_id="base_link"),
+                        child_frame_id="marker",
+                        transform=type(edge.transform)(
+                            type(edge.transform.translation)(x=t[0], y=t[1], z=t[2]),
+                            type(edge.transform.rotation)(x=q[0], y=q[1], z=q[2], w=q[3]),
+                        ),
+                    ),
+                ]
+            elif ch.topic == TOPIC_MOCAP:
+                p, o = m.pose.position, m.pose.orientation
+                wrong = _as_odometry(ts, m, "marker")  # the body's poses under the marker's name (TagSLAM's mislabel)
+                data = bytes(ts.serialize_cdr(wrong, "nav_msgs/msg/Odometry"))
+                writer.add_message(
+                    channel("/wrong/odom", odom_schema), log_time=msg.log_time, data=data, publish_time=msg.publish_time
+                )
+                r_b = quat_to_rot(np.array([o.x, o.y, o.z, o.w]))
+                pm = np.array([p.x, p.y, p.z]) + r_b @ MARKER_AT
+                qm = rots_to_quats((r_b @ r_bm)[None])[0]
+                p.x, p.y, p.z = (float(v) for v in pm)
+                o.x, o.y, o.z, o.w = (float(v) for v in qm)
+                odom = _as_odometry(ts, m, "marker")
+                data = bytes(ts.serialize_cdr(odom, "nav_msgs/msg/Odometry"))
+                writer.add_message(
+                    channel("/marker/odom", odom_schema),
+                    log_time=msg.log_time,
+                    data=data,
+                    publish_time=msg.publish_time,
+                )
+            data = bytes(ts.serialize_cdr(m, schema.name))
+            writer.add_message(
+                channel(ch.topic, schema), log_time=msg.log_time, data=data, publish_time=msg.publish_time
+            )
+        writer.finish()
+    return dst
+
+
+def _as_odometry(ts, pose_stamped, child: str):
+    """``pose_stamped`` as a nav_msgs/Odometry naming ``child`` (no twist)."""
+    t = ts.types
+    zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+    return t["nav_msgs/msg/Odometry"](
+        header=pose_stamped.header,
+        child_frame_id=child,
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=copy.deepcopy(pose_stamped.pose), covariance=np.zeros(36)),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=zero, angular=zero), covariance=np.zeros(36)
+        ),
+    )
+
+
+def test_a_truth_of_a_frame_static_tf_places_on_the_body_is_carried_to_the_body(tmp_path):
+    """A truth of another frame than the body (a marker turned 120 deg and 0.3 m off it, static TF placing it) was
+    compared with the body's poses as it was: its rotation APE was the marker's turn, its translation APE the lever
+    arm swung by the rotation (TagSLAM test 22: 110-148 deg). Where the truth names its frame (an Odometry's
+    child_frame_id) or the config does (``frames.truth``, a PoseStamped naming none), the report carries the truth
+    to the body by TF's transform: the same APE as against the body's own truth, and the written truth_tum.txt is
+    the carried truth (evo_ape on the files gives the report's number)."""
+    clean = write_log(simulate("figure8", duration=8.0, seed=4340), tmp_path / "clean.mcap")
+    log = _truth_of_a_marker(clean, tmp_path / "marker.mcap")
+    topics = "topics:\n  linear_velocity: /odom\n  truth: "  # the marker's Odometry is no velocity
+    runs = {
+        "clean": (clean, f"{topics}/mocap/pose\n"),
+        "odometry": (log, f"{topics}/marker/odom\n"),
+        "stated": (log, f"{topics}/mocap/pose\nframes:\n  truth: marker\n"),
+        "mislabelled": (log, f"{topics}/wrong/odom\n"),
+        "mislabel_stated": (log, f"{topics}/wrong/odom\nframes:\n  truth: base_link\n"),
+    }
+    reports = {}
+    for name, (path, cfg) in runs.items():
+        (tmp_path / f"{name}.yaml").write_text(cfg + "evaluation:\n  plots: false\n")
+        args = ("--observer", "fast-adaptation", "--export", "tum", "--config", tmp_path / f"{name}.yaml")
+        res = invoke("run", path, "-o", tmp_path / name, *args)
+        assert res.exit_code == 0, res.output
+        reports[name] = json.loads((tmp_path / name / "report.json").read_text())
+    base = reports["clean"]["ape"]
+    assert base["rotation_deg"]["rmse"] < 10
+    truth = np.loadtxt(tmp_path / "clean" / "truth_tum.txt")
+    for name, origin in (("odometry", "the truth's child_frame_id"), ("stated", "frames.truth")):
+        ape = reports[name]["ape"]
+        for key in ("translation_m", "rotation_deg"):
+            assert ape[key]["rmse"] == pytest.approx(base[key]["rmse"], rel=1e-6, abs=1e-9), (name, key, ape)
+        assert ape["truth_frame_turn"] is None
+        carried = np.loadtxt(tmp_path / name / "truth_tum.txt")
+        assert np.abs(carried[:, 1:4] - truth[:, 1:4]).max() < 1e-6  # the file evo reads is the carried truth
+        meta = json.loads((tmp_path / name / "run.json").read_text())
+        record = meta["input"]["truth_body"]
+        assert record["frame"] == "marker" and record["from"] == origin, record
+        assert np.allclose(record["translation"], MARKER_AT) and _angle_deg(record["quat_xyzw"], MARKER_XYZW) < 1e-6
+        assert reports[name]["options"]["truth_in_body"] == [*record["translation"], *record["quat_xyzw"]]
+        note = [n for n in reports[name]["notes"] if n.startswith("the truth is of the frame 'marker'")]
+        assert len(note) == 1 and note[0] in (tmp_path / name / "report.md").read_text(), reports[name]["notes"]
+    # a child_frame_id that names another frame than its poses' (TagSLAM's) is carried the wrong way: said, with the key
+    wrong = reports["mislabelled"]
+    assert wrong["ape"]["truth_frame_turn"] is not None and wrong["ape"]["rotation_deg"]["rmse"] > 60
+    note = [n for n in wrong["notes"] if n.startswith("the truth is of the frame 'marker'")]
+    assert len(note) == 1 and "the child_frame_id may not name the frame its poses are of" in note[0], wrong["notes"]
+    assert not any("may not name" in n for r in ("odometry", "stated") for n in reports[r]["notes"])
+    stated = reports["mislabel_stated"]  # frames.truth: the body's own name compares it as it is
+    assert stated["ape"]["translation_m"]["rmse"] == pytest.approx(base["translation_m"]["rmse"], rel=1e-6, abs=1e-9)
+    assert stated["options"].get("truth_in_body") is None
+    assert reports["clean"]["options"].get("truth_in_body") is None
+    assert json.loads((tmp_path / "clean" / "run.json").read_text())["input"]["truth_body"] is None
+    # a stated frame static TF does not place is an error, not a silent comparison
+    (tmp_path / "wrong.yaml").write_text("topics:\n  truth: /mocap/pose\nframes:\n  truth: elsewhere\n")
+    res = invoke(
+        "run", log, "-o", tmp_path / "wrong", "--observer", "fast-adaptation", "--config", tmp_path / "wrong.yaml"
+    )
+    assert res.exit_code == 2 and "frames.truth: 'elsewhere' is not placed on the body frame" in res.output, res.output

@@ -55,6 +55,8 @@ from slamobs.pipeline.evaluation.sections import (
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
 from slamobs.pipeline.evaluation.trajectory_error import Paired
 from slamobs.pipeline.evaluation.trajectory_evaluation import (
+    SET_ONLY_OPTIONS,
+    TUPLE_OPTIONS,
     Pending,
     ReportOptions,
     TrajectoryEvaluation,
@@ -307,7 +309,7 @@ def _report(sections: dict, ev: TrajectoryEvaluation, truth: PoseStream, options
         "options": {
             k: (list(v) if isinstance(v, tuple) else v)
             for k, v in asdict(options).items()
-            if v is not None or k != "truth_rotation_xyzw"  # only where set: reports without it stay as they were
+            if v is not None or k not in SET_ONLY_OPTIONS
         },
         "method": _method(ev, options, sections.values()),
     }
@@ -376,7 +378,7 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     opts["t_max_diff_s"] = report["method"]["association"]["t_max_diff_s"]
     al = report["method"]["alignment"]
     opts["align"] = al.get("requested") or al["type"]  # the kind asked for, when the truth chose another
-    for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+    for key in TUPLE_OPTIONS:
         if opts.get(key) is not None:
             opts[key] = tuple(opts[key])
     fields = set(ReportOptions.__dataclass_fields__)
@@ -506,8 +508,9 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     time window it kept, what the run's own status says beside the convergence (``convergence.own_status``:
     :func:`own_status`), and what to try next (``hints``: :func:`run_hints`); a note of the truth's body frame
     turned reads as the camera's when the run's notes name the camera's extrinsic
-    (:func:`.sections.camera_named_notes`). The same whether the report is made by ``slamobs run`` or again by
-    ``slamobs report``."""
+    (:func:`.sections.camera_named_notes`); where the truth was carried from its own frame to the body
+    (``options.truth_in_body``), the run's note saying so (``alignment.truth_body_note``). The same whether the
+    report is made by ``slamobs run`` or again by ``slamobs report``."""
     from slamobs.pipeline.evaluation.sections import body_frame_notes, camera_named_notes
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
@@ -515,6 +518,12 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     if report.get("notes"):
         report["notes"] = camera_named_notes(report, metadata)
         report["notes"] += body_frame_notes(report, metadata.get("input") or {})
+    if report.get("ape") and (report.get("options") or {}).get("truth_in_body"):  # the truth carried to the body
+        from slamobs.pipeline.alignment import truth_body_note
+
+        run_input = metadata.get("input") or {}
+        turned = bool(report["ape"].get("truth_frame_turn"))
+        report.setdefault("notes", []).extend(truth_body_note(run_input["body_frame"], run_input["truth_body"], turned))
     if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []

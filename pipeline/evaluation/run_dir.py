@@ -32,7 +32,7 @@ from slamobs.pipeline.evaluation.report import (
     with_lost_warnings,
     write_report,
 )
-from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, recorded_offset
+from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, recorded_offset, truth_in_body
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import NEW, OWNER, remove_stale_temporaries, update_manifest, write_json
 
@@ -272,8 +272,11 @@ def gravity_aligned(meta: dict[str, Any]) -> bool:
 
 
 def options_for_run(meta: dict[str, Any], **overrides: Any) -> ReportOptions:
-    """Report options for a run: 4-DoF alignment added when its poses are gravity-aligned by IMU directions."""
-    return ReportOptions(gravity_aligned=gravity_aligned(meta), **{k: v for k, v in overrides.items() if v is not None})
+    """Report options for a run: 4-DoF alignment added when its poses are gravity-aligned by IMU directions, the
+    truth carried to the body where run.json says TF places the truth's frame on it (``input.truth_body``)."""
+    carried = truth_in_body((meta.get("input") or {}).get("truth_body"))
+    given = {k: v for k, v in overrides.items() if v is not None}
+    return ReportOptions(**{"gravity_aligned": gravity_aligned(meta), "truth_in_body": carried, **given})
 
 
 def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[Path]:

@@ -73,6 +73,10 @@ class ReportOptions:
     #: X (quaternion x, y, z, w) with R_truth = R_est X: the truth's body frame in the estimate's
     #: (``frames.truth_rotation``); the truth's rotations are turned by Xᵀ before anything is compared
     truth_rotation_xyzw: tuple[float, float, float, float] | None = None
+    #: the truth's own frame in the estimate's body (translation x, y, z, quaternion x, y, z, w: ``x_body = R x + t``;
+    #: :func:`truth_in_body` of run.json ``input.truth_body``): the truth is carried to the body first
+    #: (:func:`turned_truth`)
+    truth_in_body: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.align not in NAMES:
@@ -245,7 +249,7 @@ def evaluate_trajectory(
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
     est = estimate_stream(poses)
-    truth_sorted = sorted_stream(turned_truth(truth, options.truth_rotation_xyzw))
+    truth_sorted = sorted_stream(turned_truth(truth, options.truth_rotation_xyzw, options.truth_in_body))
     offset = None
     search = (truth_sorted, est, SyncOptions(options.t_max_diff_s, 0.0, "nearest"), AlignOptions(options.align))
     beside = len(est) + len(truth_sorted) <= OFFSET_BESIDE_SAMPLES
@@ -540,13 +544,14 @@ def log_time_offset(
     *,
     max_offset_s: float = ReportOptions.max_time_offset_s,
     truth_rotation_xyzw=None,
+    truth_in_body=None,
 ) -> TimeOffset | None:
     """The clock offset of a log against its truth (``truth`` on the run's clock): the truth's angular rate (or
     speed) correlated with the log's own velocity samples (:func:`.sync.velocity_steps`), which the estimate
     shares the clock with. Known before the estimate is (a run searches it beside the observer); an estimate
     that lags the motion (filtering) or is lost does not move it. The truth as the report takes it (valid poses,
-    ``frames.truth_rotation``, time order)."""
-    truth = sorted_stream(turned_truth(valid_truth(truth)[0], truth_rotation_xyzw))
+    ``frames.truth_rotation``, ``truth_in_body``, time order)."""
+    truth = sorted_stream(turned_truth(valid_truth(truth)[0], truth_rotation_xyzw, truth_in_body))
     if len(truth) == 0:
         return None
 
@@ -612,14 +617,35 @@ def recorded_offset(record: dict | None) -> TimeOffset | None:
     return None if record is None else TimeOffset(**{k: record.get(k) for k in SEARCH_FIELDS})
 
 
-def turned_truth(truth: PoseStream, x_xyzw) -> PoseStream:
-    """The truth in the estimate's body convention: each rotation ``R_truth`` becomes ``R_truth Xᵀ`` (positions
-    unchanged), ``X`` the quaternion of ``frames.truth_rotation``; the truth itself without one."""
-    if x_xyzw is None:
+#: the report options that are tuples (report.json keeps them as lists: read back, they are made tuples again)
+TUPLE_OPTIONS = ("drift_lengths_m", "truth_rotation_xyzw", "truth_in_body")
+#: the report options report.json records only where set (reports without them stay as they were)
+SET_ONLY_OPTIONS = ("truth_rotation_xyzw", "truth_in_body")
+
+
+def truth_in_body(record: dict | None) -> tuple[float, ...] | None:
+    """:attr:`ReportOptions.truth_in_body` of run.json's ``input.truth_body`` (``alignment.truth_frame_in_body``:
+    the truth's frame placed on the body by static TF), None without one."""
+    return None if not record else (*record["translation"], *record["quat_xyzw"])
+
+
+def turned_truth(truth: PoseStream, x_xyzw, in_body=None) -> PoseStream:
+    """The truth in the estimate's body frame. ``in_body`` (:attr:`ReportOptions.truth_in_body`: the truth's frame F
+    at ``t`` turned by ``R_bf`` in the body B) carries each pose to the body, ``T_world_B = T_world_F T_BFᵀ``:
+    ``R_B = R_F R_bfᵀ``, ``p_B = p_F − R_B t`` (the estimate and its files stay the body's, and the truth written
+    beside them for evo is this one). Then each rotation ``R_truth`` becomes ``R_truth Xᵀ`` (positions unchanged),
+    ``X`` the quaternion of ``frames.truth_rotation``. The truth itself without either."""
+    if x_xyzw is None and in_body is None:
         return truth
-    x = quat_to_rot(np.asarray(x_xyzw, dtype=np.float64))
-    turned = np.matmul(quats_to_rots(np.ascontiguousarray(truth.quat_xyzw, dtype=np.float64)), x.T)
-    return replace(truth, quat_xyzw=rots_to_quats(np.ascontiguousarray(turned)))
+    rots = quats_to_rots(np.ascontiguousarray(truth.quat_xyzw, dtype=np.float64))
+    position = np.asarray(truth.position, dtype=np.float64)
+    if in_body is not None:
+        r_bf = quat_to_rot(np.asarray(in_body[3:], dtype=np.float64))
+        rots = np.matmul(rots, r_bf.T)
+        position = position - np.matmul(rots, np.asarray(in_body[:3], dtype=np.float64))
+    if x_xyzw is not None:
+        rots = np.matmul(rots, quat_to_rot(np.asarray(x_xyzw, dtype=np.float64)).T)
+    return replace(truth, position=position, quat_xyzw=rots_to_quats(np.ascontiguousarray(rots)))
 
 
 def sorted_stream(stream: PoseStream) -> PoseStream:

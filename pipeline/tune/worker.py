@@ -134,7 +134,7 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
     import pandas as pd
 
     from slamobs.pipeline.evaluation.metrics import landmark_errors
-    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory, truth_in_body
     from slamobs.pipeline.observers.base import ObserverDiverged, lost_evidence
     from slamobs.pipeline.run import estimator_input, truth_on_run_clock
     from slamobs.pipeline.writers import stretch_tables
@@ -146,12 +146,17 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
     if not np.isfinite(res.position).all():
         raise ObserverDiverged(int(res.t_ns[np.argmax(~np.isfinite(res.position).all(axis=1))]), res.stats)
     poses = pd.DataFrame(stretch_tables(res)["poses"])
+    carried = None  # batch's solution is of the body; the log's truth carried to the body where it is another frame's
     if target == "batch":
         truth, landmark_truth = batch_reference(prepared, config)
     else:
         truth, landmark_truth = truth_on_run_clock(prepared.streams, config), prepared.streams.landmark_truth
+        carried = truth_in_body(prepared.aligned.truth_body)
     ev = evaluate_trajectory(
-        poses, truth, ReportOptions(t_max_diff_s=config.evaluation.t_max_diff), estimate_offset=False
+        poses,
+        truth,
+        ReportOptions(t_max_diff_s=config.evaluation.t_max_diff, truth_in_body=carried),
+        estimate_offset=False,
     )
     checks = res.stats.get("metadata", {})
     lm_rmse = None
