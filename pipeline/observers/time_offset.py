@@ -878,7 +878,8 @@ def world_twist(c: Consistency) -> dict:
 #: ``LEVER_ARM_GAIN`` times better than the bias alone (a generated figure 8 with its twist 0.5 m beside the body,
 #: no TF: (0.019, 0.497, 0.010) m, 5.85x; clean figure 8s, a ground robot and a loop: at most 0.07 m, 1.00x; the
 #: real logs fit arms of 0.3-1.0 m at 1.02-1.41x, MR.CLAM's ten robots 0.30-0.74 m forward, TagSLAM 22 1.0 m at 1.25x:
-#: not named).
+#: not named). An arm seen that explains a lag or scale the pairs name without it is named whatever its gain
+#: (:func:`arm_explains`, a χ² rule).
 LEVER_ARM_MIN_M = 0.1
 LEVER_ARM_SIGMAS = 5.0
 LEVER_ARM_GAIN = 2.0
