@@ -959,8 +959,10 @@ def arm_explains(offset: dict) -> list[str]:
     """What the lever arm (:func:`lever_arm`, seen beyond its standard errors: :func:`_arm_seen`) explains of the
     other misreads the pairs name without it: the velocity lag (:func:`velocity_lag_sentence`) where the arm
     (three unknowns) fits the pairs better than the lag (one) by :func:`_beats`; each velocity axis named as scaled
-    (:func:`velocity_misread`) that the scales fitted with the arm (``velocity_scale["with_arm"]``) no longer name,
-    where the arm fits better than the scales by the same rule. A point 0.2 m ahead of a hand-held rig's origin
+    (:func:`velocity_misread`) that the scales fitted with the arm (``velocity_scale["with_arm"]``) measure and no
+    longer name, where the arm fits better than the scales by the same rule (an axis the arm leaves unmeasured is
+    not explained: on a figure 8's curves a sideways arm moves the pairs as a forward scale does, and a velocity
+    3.6x off had its z scale so taken). A point 0.2 m ahead of a hand-held rig's origin
     (seed=4127) reads without it as a lag of 0.124 s (1.11x) and a y scale of 0.546x; the arm fits 1.30x, and
     with it the y scale is 0.997. Empty otherwise."""
     arm = offset.get("lever_arm")
@@ -972,8 +974,9 @@ def arm_explains(offset: dict) -> list[str]:
         said.append(f"the linear velocity's lag ({lag['lag_s']:.3f} s)")
     if scale.get("with_arm") and _beats(arm["frames"], arm["over_scale"], 3 - int(scale["axes"])):
         kept = {phrase.split(" ", 2)[1] for phrase in velocity_misread(scale["with_arm"])}
+        measured = {axis for axis, g in zip("xyz", scale["with_arm"]["scale"], strict=True) if g is not None}
         named = [(phrase.split(" ", 2)[1], g) for phrase, g in _misread_axes(scale)]
-        gone = [f"{axis} {g:.3g}x" for axis, g in named if axis not in kept]
+        gone = [f"{axis} {g:.3g}x" for axis, g in named if axis in measured and axis not in kept]
         said += [f"the velocity's scale along {' and '.join(gone)}"] if gone else []
     return said
 
@@ -981,10 +984,14 @@ def arm_explains(offset: dict) -> list[str]:
 def lever_arm_sentence(offset: dict) -> str | None:
     """The warning of :func:`lever_arm` (``LEVER_ARM_*``): where the arm is seen (:func:`_arm_seen`) and fits
     ``LEVER_ARM_GAIN`` times better than the bias alone, or explains a lag or scale the pairs name without it
-    (:func:`arm_explains`); None when it says nothing."""
+    (:func:`arm_explains`), unless the velocity's scales fit the pairs better (:func:`_beats`: a velocity 3.6x off
+    on a figure 8 fits a sideways arm of 4.8 m at 2.26x, and its scales 130x better than that); None otherwise."""
     arm, explained = offset.get("lever_arm"), arm_explains(offset)
     if not _arm_seen(offset) or (arm["gain"] < LEVER_ARM_GAIN and not explained):
         return None
+    scale = offset.get("velocity_scale") or {}
+    if "frames" in arm and _beats(arm["frames"], 1.0 / arm["over_scale"], int(scale.get("axes", 3)) - 3):
+        return None  # the scales fit the pairs better than the arm: a velocity scale (a figure 8's twist x3.6: 130x)
     r, sigma = np.asarray(arm["r_m"]), np.asarray(arm["sigma_m"])
     where = ", ".join(f"{v:+.3f}" for v in r)
     instead = f"; fitted without it, the pairs read {' and '.join(explained)}, which it explains" if explained else ""
@@ -1571,8 +1578,11 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     if arm is not None and not found:  # the rotations are the gyro's: only where it reads right (as world_twist)
         found.append((arm, WHOLE_ESTIMATES[1], ("odometry", "detections", "camera")))
         # the lag and the scales the arm explains are not said (arm_explains); the scales are those fitted with it
-        lag = None if any(e.startswith("the linear velocity's lag") for e in arm_explains(offset)) else lag
-        scale = scale.get("with_arm", scale) if scale else scale
+        explained = arm_explains(offset)
+        lag = None if any(e.startswith("the linear velocity's lag") for e in explained) else lag
+        # where it explains a scale, the scales said are those fitted with it (an arm named by its gain alone leaves
+        # them as fitted without it)
+        scale = scale["with_arm"] if scale and any(e.startswith("the velocity's scale") for e in explained) else scale
     late = odometry_late(offset, topics.get("linear_velocity", "ODOMETRY"))
     if late is not None:
         found.append((late, WHOLE_ESTIMATES[0], ("gyro", "odometry", "detections")))
