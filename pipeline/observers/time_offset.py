@@ -50,6 +50,7 @@ from slamobs.pipeline.lie import (
     so3_log,
 )
 from slamobs.pipeline.observers.accel_scale import scale_cause, velocity_scale_by_accel
+from slamobs.pipeline.noise import LEVEL_CHOICE_P, chi2_quantile
 
 PAIR_SPAN_S = 1.0
 PAIR_MAX_S = 2.0
@@ -877,7 +878,8 @@ def world_twist(c: Consistency) -> dict:
 #: ``LEVER_ARM_GAIN`` times better than the bias alone (a generated figure 8 with its twist 0.5 m beside the body,
 #: no TF: (0.019, 0.497, 0.010) m, 5.85x; clean figure 8s, a ground robot and a loop: at most 0.07 m, 1.00x; the
 #: real logs fit arms of 0.3-1.0 m at 1.02-1.41x, MR.CLAM's ten robots 0.30-0.74 m forward, TagSLAM 22 1.0 m at 1.25x:
-#: not named).
+#: not named). An arm seen that explains a lag or scale the pairs name without it is named whatever its gain
+#: (:func:`arm_explains`, a χ² rule).
 LEVER_ARM_MIN_M = 0.1
 LEVER_ARM_SIGMAS = 5.0
 LEVER_ARM_GAIN = 2.0
@@ -899,40 +901,105 @@ def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return x, np.sqrt(np.diag(np.linalg.inv(ata)) * cost / 3.0), cost, keep, ata
 
 
-def lever_arm(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
+def _arm_jacobian(c: Consistency, shift: float) -> np.ndarray:
+    """Per pair (pairs, 3, 3): how its residual at the detection shift ``shift`` moves with the lever arm ``r``
+    (:func:`lever_arm`): ``(R_aᵀ R_b − I)``, the rotations dead-reckoned to the two detections."""
+    ta, tb = c.det_t[c.a] + shift, c.det_t[c.b] + shift
+    r_a, r_b = _dead_reckoned_at(c, ta)[0], _dead_reckoned_at(c, tb)[0]
+    return np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
+
+
+def lever_arm(
+    c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray], arm: np.ndarray, scale: dict
+) -> dict:
     """The lever arm ``r`` (m, body frame) between the point whose velocity the odometry gives and the body's
     origin, fitted to the pairs with the odometry's bias: that point moves by ``v + ω × r``, so its integral
     between two detections is off the body's by ``(R_b − R_a) r`` and each pair's residual by ``−(R_aᵀ R_b − I) r``
-    (exact: the rotations do not depend on the velocity). A camera extrinsic's translation off by ``−r`` moves the
-    residuals alike: the pairs cannot tell the two apart. ``gain``: the trimmed mean squared residual with the bias
-    alone over that with the arm too. An odometry frame beside the body that no TF gives reads so (a generated
-    figure 8, 0.5 m: riekf APE 0.170 m against 0.011, with notes of wheel slip only). At the detection shift
-    ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of 2.1 m), with the
-    residuals and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`, as :func:`velocity_scale`)."""
-    ta, tb = c.det_t[c.a] + shift, c.det_t[c.b] + shift
-    r_a, r_b = _dead_reckoned_at(c, ta)[0], _dead_reckoned_at(c, tb)[0]
-    arm = np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
+    (exact: the rotations do not depend on the velocity; ``arm``: :func:`_arm_jacobian`). A camera extrinsic's
+    translation off by ``−r`` moves the residuals alike: the pairs cannot tell the two apart. ``gain``: the trimmed
+    mean squared residual with the bias alone over that with the arm too; ``over_scale``: the velocity scale's
+    (``scale``, :func:`velocity_scale`, fitted on the same pairs) over the arm's; ``frames``: the detection frames
+    the pairs join (what :func:`lever_arm_sentence`'s comparisons count). An odometry frame beside the body that no TF
+    gives reads so (a generated figure 8, 0.5 m: riekf APE 0.170 m against 0.011, with notes of wheel slip only). At
+    the detection shift ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of
+    2.1 m), with the residuals and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`, as
+    :func:`velocity_scale`)."""
     base, _, jac = fit
     x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, jac], axis=2))[:3]
     alone = _trimmed_fit(base, jac)[2]
-    return {"r_m": [round(float(v), 4) for v in x[:3]], "sigma_m": [float(v) for v in sigma[:3]], "gain": alone / cost}
+    frames = int(np.unique(c.det_t[np.concatenate([c.a, c.b])]).shape[0])
+    return {
+        "r_m": [round(float(v), 4) for v in x[:3]],
+        "sigma_m": [float(v) for v in sigma[:3]],
+        "gain": alone / cost,
+        "over_scale": float(scale["cost"]) / max(cost, 1e-300),
+        "frames": frames,
+    }
+
+
+def _arm_seen(offset: dict) -> bool:
+    """Whether the lever arm's length over its axes fitted beyond ``LEVER_ARM_SIGMAS`` standard errors is
+    ``LEVER_ARM_MIN_M`` or more."""
+    arm = offset.get("lever_arm")
+    if not arm:
+        return False
+    r, sigma = np.asarray(arm["r_m"]), np.asarray(arm["sigma_m"])
+    return float(np.linalg.norm(r[np.abs(r) > LEVER_ARM_SIGMAS * sigma])) >= LEVER_ARM_MIN_M
+
+
+def _beats(frames: int, ratio: float, dof: int) -> bool:
+    """Whether a model whose trimmed mean squared residual is ``ratio`` times smaller than another's, with ``dof``
+    more unknowns, fits the pairs better by the χ² rule of a deviance: ``frames ln(ratio)`` above the
+    ``LEVEL_CHOICE_P`` quantile of χ² with ``dof`` degrees of freedom (above 0 for as many unknowns or fewer). The
+    detection frames count, not the pairs: one frame's detections are in many pairs."""
+    return frames * np.log(max(ratio, 1e-300)) > (chi2_quantile(LEVEL_CHOICE_P, dof) if dof > 0 else 0.0)
+
+
+def arm_explains(offset: dict) -> list[str]:
+    """What the lever arm (:func:`lever_arm`, seen beyond its standard errors: :func:`_arm_seen`) explains of the
+    other misreads the pairs name without it: the velocity lag (:func:`velocity_lag_sentence`) where the arm
+    (three unknowns) fits the pairs better than the lag (one) by :func:`_beats`; each velocity axis named as scaled
+    (:func:`velocity_misread`) that the scales fitted with the arm (``velocity_scale["with_arm"]``) measure and no
+    longer name, where the arm fits better than the scales by the same rule (an axis the arm leaves unmeasured is
+    not explained: on a figure 8's curves a sideways arm moves the pairs as a forward scale does, and a velocity
+    3.6x off had its z scale so taken). A point 0.2 m ahead of a hand-held rig's origin
+    (seed=4127) reads without it as a lag of 0.124 s (1.11x) and a y scale of 0.546x; the arm fits 1.30x, and
+    with it the y scale is 0.997. Empty otherwise."""
+    arm = offset.get("lever_arm")
+    if not _arm_seen(offset) or "frames" not in arm:
+        return []
+    said, scale = [], offset.get("velocity_scale") or {}
+    lag = offset.get("velocity_lag")
+    if velocity_lag_sentence(lag, offset["pairs"]) is not None and _beats(arm["frames"], arm["gain"] / lag["gain"], 2):
+        said.append(f"the linear velocity's lag ({lag['lag_s']:.3f} s)")
+    if scale.get("with_arm") and _beats(arm["frames"], arm["over_scale"], 3 - int(scale["axes"])):
+        kept = {phrase.split(" ", 2)[1] for phrase in velocity_misread(scale["with_arm"])}
+        measured = {axis for axis, g in zip("xyz", scale["with_arm"]["scale"], strict=True) if g is not None}
+        named = [(phrase.split(" ", 2)[1], g) for phrase, g in _misread_axes(scale)]
+        gone = [f"{axis} {g:.3g}x" for axis, g in named if axis in measured and axis not in kept]
+        said += [f"the velocity's scale along {' and '.join(gone)}"] if gone else []
+    return said
 
 
 def lever_arm_sentence(offset: dict) -> str | None:
-    """The warning of :func:`lever_arm` (``LEVER_ARM_*``), None when it says nothing."""
-    arm = offset.get("lever_arm")
-    if not arm:
+    """The warning of :func:`lever_arm` (``LEVER_ARM_*``): where the arm is seen (:func:`_arm_seen`) and fits
+    ``LEVER_ARM_GAIN`` times better than the bias alone, or explains a lag or scale the pairs name without it
+    (:func:`arm_explains`), unless the velocity's scales fit the pairs better (:func:`_beats`: a velocity 3.6x off
+    on a figure 8 fits a sideways arm of 4.8 m at 2.26x, and its scales 130x better than that); None otherwise."""
+    arm, explained = offset.get("lever_arm"), arm_explains(offset)
+    if not _arm_seen(offset) or (arm["gain"] < LEVER_ARM_GAIN and not explained):
         return None
+    scale = offset.get("velocity_scale") or {}
+    if "frames" in arm and _beats(arm["frames"], 1.0 / arm["over_scale"], int(scale.get("axes", 3)) - 3):
+        return None  # the scales fit the pairs better than the arm: a velocity scale (a figure 8's twist x3.6: 130x)
     r, sigma = np.asarray(arm["r_m"]), np.asarray(arm["sigma_m"])
-    seen = np.abs(r) > LEVER_ARM_SIGMAS * sigma
-    if float(np.linalg.norm(r[seen])) < LEVER_ARM_MIN_M or arm["gain"] < LEVER_ARM_GAIN:
-        return None
     where = ", ".join(f"{v:+.3f}" for v in r)
+    instead = f"; fitted without it, the pairs read {' and '.join(explained)}, which it explains" if explained else ""
     return (
         f"the detections fit the odometry {arm['gain']:.3g}x better as the velocity of a point ({where}) m from the "
         f"body's origin (± {float(np.max(sigma)):.2g} m; {offset['pairs']} detection pairs, the odometry's bias "
-        "fitted with it): a lever arm no TF gives (the odometry's child_frame_id a frame beside the body, its "
-        "twist taken as the body's: give its transform to the body, or frames.body: that frame), or the "
+        f"fitted with it{instead}): a lever arm no TF gives (the odometry's child_frame_id a frame beside the body, "
+        "its twist taken as the body's: give its transform to the body, or frames.body: that frame), or the "
         "detections' frame's extrinsic off by the opposite translation, which the detections cannot tell from it; "
         "a forward arm with sideways residuals can also be a yaw rate off the motion (commanded, or lagging it), "
         "whose heading error a far landmark turns sideways (docs/observers.md)"
@@ -956,7 +1023,9 @@ def _velocity_displacements(c: Consistency, shift: float, keep: np.ndarray, base
     return out
 
 
-def velocity_scale(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
+def velocity_scale(
+    c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray], arm: np.ndarray | None = None
+) -> dict:
     """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
     ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`Consistency.cost`). An axis along
@@ -978,13 +1047,22 @@ def velocity_scale(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarr
     the two and :func:`velocity_misread` names it only where both are off. The axes' mean square is pooled from their
     white levels (``AlignedStream.velocity_white_density``: an axis's samples' level of such motion does not dilute
     the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`), with the residuals,
-    the samples they read and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`)."""
+    the samples they read and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`). ``cost``: the fit's
+    trimmed mean squared residual, ``axes``: how many axes it fitted. ``arm`` (:func:`_arm_jacobian`): the same
+    fit with the lever arm fitted too, under ``with_arm`` (:func:`lever_arm_sentence` reads the scales so)."""
     base, read, jac = fit
     d = _velocity_displacements(c, shift, read, base)
+    out = _scale_fit(c, d, base, jac)
+    return out if arm is None else {**out, "with_arm": _scale_fit(c, d, base, np.concatenate([arm, jac], axis=2))}
+
+
+def _scale_fit(c: Consistency, d: np.ndarray, base: np.ndarray, jac: np.ndarray) -> dict:
+    """:func:`velocity_scale`'s fit of the axes' displacements ``d`` with the columns ``jac`` (the bias's, the
+    lever arm's too where given)."""
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
     a = np.concatenate([-d[:, :, moved], jac], axis=2)  # (pairs, 3, unknowns)
-    x, sigma, _, keep, ata = _trimmed_fit(base, a)
+    x, sigma, cost, keep, ata = _trimmed_fit(base, a)
     inv = np.linalg.inv(ata)
     inflation = np.diag(inv) * np.diag(ata)
     # taken off with each axis's own level where it is below the axes' mean (each is an upper bound of its white noise:
@@ -1011,7 +1089,7 @@ def velocity_scale(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarr
                 kept = 1.0 - float(dilution[i])
                 scale[j], err[j] = round((1.0 + float(x[i])) / kept, 6), float(sigma[i]) / kept
                 fitted[j] = round(1.0 + float(x[i]), 6)
-    return {"scale": scale, "sigma": err, "dilution": diluted, "fitted": fitted}
+    return {"scale": scale, "sigma": err, "dilution": diluted, "fitted": fitted, "cost": cost, "axes": int(moved.sum())}
 
 
 def velocity_misread(scale: dict) -> list[str]:
@@ -1277,7 +1355,8 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     head, applied = _prefix_of(c), shift if why is None else 0.0
     fit = c.at_shift(at)  # the residuals and bias Jacobian there, for the velocity scale and the lever arm both
     out["gyro_misreads"] = gyro_misreads(head)
-    out["velocity_scale"] = velocity_scale(c, at, fit)
+    arm = _arm_jacobian(c, at)
+    out["velocity_scale"] = velocity_scale(c, at, fit, arm)
     if velocity_misread(out["velocity_scale"]):  # which of the two causes, where an accelerometer can tell
         out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
@@ -1295,7 +1374,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
         or velocity_misread(out["velocity_scale"])
     ):
         out["twist_turn"] = twist_turn(c)
-    out["lever_arm"] = lever_arm(c, at, fit)
+    out["lever_arm"] = lever_arm(c, at, fit, arm, out["velocity_scale"])
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, applied)
     return _searched(out, shift, sigma, gain, span, why)
@@ -1495,12 +1574,19 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         # the velocity's scale on each axis is then a consequence: not said besides
         return [(_world_twist_sentence(offset, world) + stream_topics(topics, "odometry"), "it")]
     arm = lever_arm_sentence(offset)
+    scale, lag = offset.get("velocity_scale"), offset.get("velocity_lag")
     if arm is not None and not found:  # the rotations are the gyro's: only where it reads right (as world_twist)
         found.append((arm, WHOLE_ESTIMATES[1], ("odometry", "detections", "camera")))
+        # the lag and the scales the arm explains are not said (arm_explains); the scales are those fitted with it
+        explained = arm_explains(offset)
+        lag = None if any(e.startswith("the linear velocity's lag") for e in explained) else lag
+        # where it explains a scale, the scales said are those fitted with it (an arm named by its gain alone leaves
+        # them as fitted without it)
+        scale = scale["with_arm"] if scale and any(e.startswith("the velocity's scale") for e in explained) else scale
     late = odometry_late(offset, topics.get("linear_velocity", "ODOMETRY"))
     if late is not None:
         found.append((late, WHOLE_ESTIMATES[0], ("gyro", "odometry", "detections")))
-    lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
+    lag = velocity_lag_sentence(lag, offset["pairs"])
     if lag is not None:
         found.append((lag, "them", ("gyro", "odometry")))
     # the accelerometer's scale rides on the gyro's attitude: not where the gyro is misread or turned
@@ -1513,7 +1599,7 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
             ("odometry", "detections", "camera"),
         )
         # none on a log of too few pairs (:func:`estimate` returns before its checks)
-        for what, g in (_misread_axes(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
+        for what, g in (_misread_axes(scale) if scale else [])
     ]
     return [(sentence + stream_topics(topics, *names), used) for sentence, used, names in found]
 
