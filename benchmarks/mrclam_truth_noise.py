@@ -42,6 +42,14 @@ Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
   lag: what to add to the detection stamps to put them on the commands' clock, the search's sign), over the whole
   log and over each half (split at the detections' median time) (docs/benchmarks.md, "The detection offsets the
   halves hold back, on MR.CLAM's truth").
+* ``--visits``: an eighth table, what a static landmark's detections look like over a log (docs/benchmarks.md,
+  "What makes MR.CLAM 7 r3's landmark 20 look moved"): each landmark's visits (its detections no more than
+  :data:`VISIT_GAP_S` apart; those of :data:`MIN_VISIT` or more), the robust spread of the range error within a
+  visit, the spread of the visits' median range errors (the spread within divided by the root of each visit's
+  count would be all of it if the error were white) and the largest, the same across the line of sight (bearing
+  error times range); then the mis-associations (bearing error above ``MISASSOCIATED_RAD``), at seconds from the
+  robot's first detection (the clock of batch's ``landmark_moves`` record): where each puts its landmark, the
+  surveyed landmark or the other robot (of the logs given) nearest that place.
 """
 
 from __future__ import annotations
@@ -71,6 +79,9 @@ LAW_BINS_M = (0.0, 1.5, 2.5, 3.5, 5.0)
 OFFSET_STEP_S = 0.005
 OFFSET_LAGS_S = np.round(np.arange(-0.6, 0.8 + OFFSET_STEP_S / 2, OFFSET_STEP_S), 4)
 OFFSET_WINDOW_S = 1.0
+#: ``--visits``: detections of one landmark no more than this far apart (s) are one visit; visits of fewer than
+#: ``MIN_VISIT`` detections are left out of the spreads.
+VISIT_GAP_S, MIN_VISIT = 2.0, 5
 
 
 def _robust(x: np.ndarray) -> float:
@@ -364,6 +375,63 @@ def offset_cells(streams, aligned) -> list[str]:
     return cells
 
 
+def visit_cells(streams, aligned) -> list[str]:
+    """``--visits``' cells of one robot (module docstring): within-visit and between-visit spreads of the range
+    and across errors (m), mis-associations left out."""
+    dr, db, t, lm = detection_errors(streams, aligned)
+    rng = np.linalg.norm(aligned.det_y[:, :2], axis=1) - dr
+    ok = np.abs(db) < MISASSOCIATED_RAD
+    within, medians, counts = [], [], []
+    for i in np.unique(lm):
+        rows = np.flatnonzero(ok & (lm == i))
+        cuts = np.r_[0, np.flatnonzero(np.diff(t[rows]) > VISIT_GAP_S) + 1, rows.size]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            if b - a >= MIN_VISIT:
+                v = rows[a:b]
+                errs = (dr[v], db[v] * rng[v])
+                within.append([_robust(e) for e in errs])
+                medians.append([float(np.median(e)) for e in errs])
+                counts.append(b - a)
+    within, medians, n = np.array(within), np.array(medians), np.array(counts)
+    white = np.sqrt(np.mean(within**2 * (np.pi / 2) / n[:, None], axis=0))  # a median's variance, white errors
+    return [
+        f"{n.size}",
+        *(
+            f"{np.median(within[:, k]):.3f} / {np.std(medians[:, k]):.3f} ({white[k]:.3f}) / "
+            f"{np.max(np.abs(medians[:, k])):.2f}"
+            for k in range(2)
+        ),
+        f"{np.count_nonzero(~ok)}",
+    ]
+
+
+def misassociated_rows(name: str, streams, aligned, robots: dict) -> list[str]:
+    """``--visits``' mis-associations of one robot: time, id, where the detection puts it against the survey, and
+    the surveyed landmark or other robot nearest that place."""
+    dr, db, t, lm = detection_errors(streams, aligned)
+    yaw, pos = _truth_yaw(streams, t, aligned.t0_ns)
+    y = aligned.det_y[:, :2]
+    c, s = np.cos(yaw), np.sin(yaw)
+    place = pos + np.stack([c * y[:, 0] - s * y[:, 1], s * y[:, 0] + c * y[:, 1]], axis=1)
+    ids = aligned.landmark_ids
+    survey = {int(k): np.asarray(v[:2]) for k, v in streams.landmark_truth.items()}
+    t_abs = aligned.t0_ns + np.round(t * 1e9).astype(np.int64)
+    out = []
+    for k in np.flatnonzero(np.abs(db) >= MISASSOCIATED_RAD):
+        near = {f"landmark {i}": float(np.linalg.norm(place[k] - p)) for i, p in survey.items()}
+        for other, truth in robots.items():
+            if other != name and truth.t_ns[0] <= t_abs[k] <= truth.t_ns[-1]:
+                at = [np.interp(t_abs[k], truth.t_ns, truth.position[:, a]) for a in range(2)]
+                near[other] = float(np.linalg.norm(place[k] - np.array(at)))
+        best = min(near, key=near.get)
+        own = int(ids[lm[k]])
+        out.append(
+            f"| {name} | {t[k] - t.min():.1f} | {own} | {np.linalg.norm(y[k]):.2f} / {dr[k]:+.2f} / {db[k]:+.2f} | "
+            f"{near[f'landmark {own}']:.2f} | {best} ({near[best]:.2f} m) |"
+        )
+    return out
+
+
 def main() -> None:
     from slamobs.pipeline.alignment import align
     from slamobs.pipeline.api import read_log
@@ -378,12 +446,14 @@ def main() -> None:
     ap.add_argument("--law", action="store_true", help="also the detection law beside the truth's per range (fifth)")
     ap.add_argument("--ratio", action="store_true", help="also the range's error against the across one (sixth)")
     ap.add_argument("--offset", action="store_true", help="also the detections' offset by the truth (seventh)")
+    ap.add_argument("--visits", action="store_true", help="also each visit's errors and the mis-associations (eighth)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
     heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
     print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
-    rows, speed, shared, laws, ratios, offsets = [], [], [], [], [], []
+    rows, speed, shared, laws, ratios, offsets, visits, wrong = [], [], [], [], [], [], [], []
+    robots = {g.name: read_log(g.path).truth for g in logs} if args.visits else {}
     for log in logs:
         streams = read_log(log.path)
         aligned = align(streams)
@@ -405,6 +475,9 @@ def main() -> None:
             ratios.append(f"| {log.name} | " + " | ".join(ratio_cells(streams, aligned, estimated.ratio)) + " |")
         if args.offset:
             offsets.append(f"| {log.name} | " + " | ".join(offset_cells(streams, aligned)) + " |")
+        if args.visits:
+            visits.append(f"| {log.name} | " + " | ".join(visit_cells(streams, aligned)) + " |")
+            wrong += misassociated_rows(log.name, streams, aligned, robots)
     lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
     print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
     print("\n".join(rows))
@@ -437,6 +510,14 @@ def main() -> None:
             "\n|" + " --- |" * 6
         )
         print("\n".join(offsets))
+    if visits:
+        print(
+            "\n| robot | visits | range error: within a visit / between visits (white) / largest visit m | across: "
+            "the same | mis-associated |\n|" + " --- |" * 5
+        )
+        print("\n".join(visits))
+        print("\n| robot | t s | id | range m / range error m / bearing error rad | from its survey m | nearest |")
+        print("| --- | --- | --- | --- | --- | --- |\n" + "\n".join(wrong))
 
 
 if __name__ == "__main__":
