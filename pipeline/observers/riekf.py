@@ -1054,14 +1054,14 @@ def _gain(hp, chol, z, k3, d):
 
 
 @njit(cache=True)
-def _kalman_update(cov, d, hs, chol, z, k, gate, lo, hi, r_hat, p_hat, b_om, b_v, lm, slot_lm):
+def whitened_update(cov, d, hs, chol, z, k, gate, lo, hi, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     """One Kalman update of the whole (mirrored) state from ``k`` rows without a pending propagation (the floor's,
     :func:`_planar_update`, and a still window's, :func:`_still_update`): with ``hs`` = H Σ (k × d, overwritten by
     W = L⁻¹ H Σ) and ``chol`` = L (S = L Lᵀ), :func:`_gain` gives W, y = L⁻¹ z (in place of ``z``) and ξ̂ = Wᵀ y;
     skipped (False) when the innovation's d² = |y|² exceeds ``gate``; else Σ ← Σ − WᵀW and :func:`_correct`.
     Rows ``lo .. hi − 1`` and their correlations only (a Schmidt update: the other rows' ξ̂ zero, their block of Σ
     unchanged); ``0 .. d − 1`` is the plain update. A detection frame's downdate is in :func:`apply`, the pending
-    propagation's pass (:func:`update`)."""
+    propagation's pass (:func:`update`). Public: tests/test_riekf_exactness.py checks it against dense algebra."""
     xi = _gain(hs, chol, z, k, d)
     d2 = 0.0
     for r in range(k):
@@ -1090,7 +1090,7 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     (3), the height, ``t1`` (3), ``t2`` (3), the tilt's and the height's σ, the period, the median range. With
     ``R ≈ exp(−ξ_R)R̂``, ``P ≈ P̂ − ξ_P + [P̂]×ξ_R``: ``z_k = t_kᵀR̂e3`` with ``H_k = −t_kᵀ[R̂e3]×`` on ``ξ_R``,
     ``z_3 = nᵀP̂ − h`` with ``H_3 = (−nᵀ[P̂]×, nᵀ)``; one Kalman update of the whole (mirrored) state
-    (:func:`_kalman_update`)."""
+    (:func:`whitened_update`)."""
     _mirror(cov, d)
     h = np.zeros((3, 6))
     z = np.empty(3)
@@ -1127,7 +1127,7 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     s[2, 2] += s[2, 2] * f / (s[2, 2] - f) if s[2, 2] > 1.001 * f else 1e6 * (s[2, 2] + f)
     if not cholesky_lower(s, np.int64(3)):
         return
-    _kalman_update(cov, d, b, s, z, np.int64(3), np.inf, np.int64(0), d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+    whitened_update(cov, d, b, s, z, np.int64(3), np.inf, np.int64(0), d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
 
 
 @njit(cache=True)
@@ -1136,9 +1136,9 @@ def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, g
     since ``fs[_STILL_T0]`` the body neither turned nor moved, so the gyro's mean reads its bias and the velocity's
     its bias, each with its density's variance over the span (``q_om``, ``q_v``); ``H`` the identity on the bias
     rows; skipped when the innovation's d² exceeds ``gate``. One Kalman update of the whole (mirrored) state
-    (:func:`_kalman_update`); while a rotation row's variance exceeds ``HEADING_UNKNOWN_VAR`` (the heading unknown) the
-    biases' rows and their correlations only (a Schmidt update: the pose and the map neither move nor narrow, since
-    the correlations that would move them were propagated about a heading that may be turns off)."""
+    (:func:`whitened_update`); while a rotation row's variance exceeds ``HEADING_UNKNOWN_VAR`` (the heading
+    unknown) the biases' rows and their correlations only (a Schmidt update: the pose and the map neither move nor
+    narrow, since the correlations that would move them were propagated about a heading that may be turns off)."""
     n = fs[_STILL_N]
     span = (fs[_T] - fs[_STILL_T0]) * n / max(n - 1.0, 1.0)
     if n < 2.0 or span <= 0.0:
@@ -1164,7 +1164,7 @@ def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, g
     lo, hi = np.int64(0), d
     if max(cov[0, 0], cov[1, 1], cov[2, 2]) > HEADING_UNKNOWN_VAR:  # the heading unknown: the bias rows only
         lo, hi = np.int64(6), np.int64(N_FIXED)
-    _kalman_update(cov, d, hs, s, z, np.int64(6), gate, lo, hi, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+    whitened_update(cov, d, hs, s, z, np.int64(6), gate, lo, hi, r_hat, p_hat, b_om, b_v, lm, slot_lm)
 
 
 @njit(cache=True)
