@@ -689,6 +689,32 @@ def test_a_planar_estimate_turned_upside_down_by_the_alignment_is_said_so():
     assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "upside" in n]
 
 
+@pytest.mark.parametrize("kind", ["se3", "sim3"])
+def test_the_upright_fit_reads_the_spread_and_the_decomposition_the_alignment_made(monkeypatch, kind):
+    """``fit_alignment`` judges the truth's spread (``spread_axes``) and decomposes the cross-covariance (Umeyama's
+    SVD) once: ``upright_fit`` reads both, not a second of each (783c212e: two of each), and keeps the estimate up."""
+    from slamobs.pipeline.evaluation import align
+
+    truth = planar_truth()
+    rots = quats_to_rots(truth.quat_xyzw)
+    est = truth.position * np.array([1.0, -1.0, 1.0])  # mirrored, its attitudes turning with the truth's (above)
+    calls = {"spread": 0, "svd": 0}
+    spread, svd = align.spread_axes, np.linalg.svd
+
+    def counted(name, f):
+        def g(*a, **k):
+            calls[name] += 1
+            return f(*a, **k)
+
+        return g
+
+    monkeypatch.setattr(align, "spread_axes", counted("spread", spread))
+    monkeypatch.setattr(np.linalg, "svd", counted("svd", svd))
+    fit = fit_alignment(kind, truth.position, est, rots, rots)
+    assert fit.upright and fit.rot[2, 2] > 0.99
+    assert calls == {"spread": 1, "svd": 1}
+
+
 def test_compares_overlay_title_says_which_estimate_the_alignment_turned_upside_down():
     """compare's overlay.png draws each estimate after its report's SE(3) alignment; its title said nothing of an
     estimate that alignment turned upside down, which the report's own figures say: one sentence for both."""
