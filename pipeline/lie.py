@@ -11,6 +11,7 @@ code on a short log's arrays (no compile on its first run) and in one kernel for
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import types
@@ -663,14 +664,36 @@ def floor_tilt_rows(u, t, n):
     return out
 
 
+class CrossCovariance(NamedTuple):
+    """What :func:`umeyama_fit` decomposed: the cross-covariance ``1/n Σ (dst_i − μ_dst)(src_i − μ_src)ᵀ = U D Vᵀ``
+    (``u``, ``d``, ``vt`` as ``np.linalg.svd`` gives them), the means, and ``σ²_src`` (None unless the fit was
+    scaled)."""
+
+    u: np.ndarray
+    d: np.ndarray
+    vt: np.ndarray
+    mu_src: np.ndarray
+    mu_dst: np.ndarray
+    var_src: float | None
+
+
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """:func:`umeyama_fit`'s ``(R, t, s)``."""
+    return umeyama_fit(src, dst, with_scale)[:3]
+
+
+def umeyama_fit(
+    src: np.ndarray, dst: np.ndarray, with_scale: bool = False
+) -> tuple[np.ndarray, np.ndarray, float, CrossCovariance]:
     """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991, "Least-squares estimation of
     transformation parameters between two point patterns"), with ``s = 1`` unless ``with_scale``.
 
     With the cross-covariance ``Σ = 1/n Σ (dst_i − μ_dst)(src_i − μ_src)ᵀ = U D Vᵀ``, the optimum is
     ``R = U S Vᵀ`` with ``S = diag(1, 1, −1)`` when ``det U det V < 0`` (otherwise the best orthogonal
     matrix would be a reflection), ``s = tr(D S) / σ²_src`` and ``t = μ_dst − s R μ_src``. The solution
-    is unique iff ``rank Σ ≥ 2``, i.e. the points are not all collinear.
+    is unique iff ``rank Σ ≥ 2``, i.e. the points are not all collinear. Returns ``(R, t, s)`` and the
+    decomposition (:class:`CrossCovariance`: a caller that needs it again, ``evaluation.align.upright_fit``, reads
+    it, not a second SVD).
     """
     x = np.asarray(src, dtype=np.float64)
     y = np.asarray(dst, dtype=np.float64)
@@ -696,12 +719,12 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple
     if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
         s_diag[2] = -1.0
     rot = (u * s_diag) @ vt
-    scale = 1.0
+    scale, var_x = 1.0, None
     if with_scale:
         var_x = float(np.mean(np.sum(xc * xc, axis=1)))
         scale = float(np.sum(d * s_diag) / var_x)
     trans = mu_y - scale * rot @ mu_x
-    return rot, trans, scale
+    return rot, trans, scale, CrossCovariance(u, d, vt, mu_x, mu_y, var_x)
 
 
 def rotate_covariance(cov: np.ndarray, r: np.ndarray) -> np.ndarray:

@@ -694,7 +694,8 @@ def test_the_evo_line_says_evos_number_where_the_upright_fit_is_not_evos():
     report.md's "Reproduce with evo" line gave evo's command as if it reproduced the report's APE: report.json
     ``evo.departs`` and that line give the translation rmse evo's Umeyama fit gives on the same pairs; a report
     whose fit is evo's says nothing more."""
-    from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
+    from slamobs.pipeline.evaluation.align import apply_alignment
+    from slamobs.pipeline.lie import umeyama
 
     truth = planar_truth()
     poses = moved(truth, np.eye(3), np.zeros(3))
@@ -713,6 +714,32 @@ def test_the_evo_line_says_evos_number_where_the_upright_fit_is_not_evos():
     rep = checked(build_report(level, None, None, truth))
     assert "departs" not in rep["evo"]
     assert [x for x in render_markdown(rep).splitlines() if x.startswith("Reproduce with evo")][0].endswith("`.")
+
+
+@pytest.mark.parametrize("kind", ["se3", "sim3"])
+def test_the_upright_fit_reads_the_spread_and_the_decomposition_the_alignment_made(monkeypatch, kind):
+    """``fit_alignment`` judges the truth's spread (``spread_axes``) and decomposes the cross-covariance (Umeyama's
+    SVD) once: ``upright_fit`` reads both, not a second of each (783c212e: two of each), and keeps the estimate up."""
+    from slamobs.pipeline.evaluation import align
+
+    truth = planar_truth()
+    rots = quats_to_rots(truth.quat_xyzw)
+    est = truth.position * np.array([1.0, -1.0, 1.0])  # mirrored, its attitudes turning with the truth's (above)
+    calls = {"spread": 0, "svd": 0}
+    spread, svd = align.spread_axes, np.linalg.svd
+
+    def counted(name, f):
+        def g(*a, **k):
+            calls[name] += 1
+            return f(*a, **k)
+
+        return g
+
+    monkeypatch.setattr(align, "spread_axes", counted("spread", spread))
+    monkeypatch.setattr(np.linalg, "svd", counted("svd", svd))
+    fit = fit_alignment(kind, truth.position, est, rots, rots)
+    assert fit.upright and fit.rot[2, 2] > 0.99
+    assert calls == {"spread": 1, "svd": 1}
 
 
 def test_compares_overlay_title_says_which_estimate_the_alignment_turned_upside_down():

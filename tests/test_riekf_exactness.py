@@ -23,6 +23,7 @@ from slamobs.pipeline.observers.riekf import (
     apply,
     propagation_terms,
     update,
+    whitened_update,
 )
 from slamobs.pipeline.simulate import expected_streams, simulate
 
@@ -157,6 +158,53 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max() and np.array_equal(cov, cov.T)
     for got, want in ((r_hat, r_exp), (p_hat, p_exp), (lm, lm_exp), (np.r_[b_om, b_v], b_exp)):
         assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
+@pytest.mark.parametrize(
+    ("n", "k", "bias_only"), [(1, 3, False), (4, 3, False), (4, 6, False), (3, 6, True), (4, 6, True)]
+)
+def test_a_pseudo_measurement_update_equals_the_dense_kalman_update(n, k, bias_only):
+    """``whitened_update`` (the floor's three rows and a still window's six: ``_gain``'s whitening, the detection
+    update's, then ``Σ − WᵀW``): the dense Kalman update, ``K = ΣHᵀS⁻¹``, ``ξ̂ = K z``, ``Σ⁺ = Σ − K S Kᵀ``, to 1e-12
+    of the magnitudes (n = 4: d = 24, whole vectors, the padded path). With the bias rows only (the still window's
+    Schmidt update while the heading is unknown) the bias rows and their correlations are the dense update's and
+    every other entry of ``Σ``, the pose and the map are the bits they were. A d² over the gate changes nothing."""
+    rng = np.random.default_rng(4420 + 10 * n + k)
+    d = N_FIXED + 3 * n
+    a = rng.normal(size=(d, d))
+    cov = (a @ a.T + d * np.eye(d)) * 1e-3
+    lm, slot_lm = rng.normal(size=(n, 3)) * 5, rng.permutation(n)
+    r_hat, p_hat = so3_exp(rng.normal(size=3)), rng.normal(size=3)
+    b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    h = rng.normal(size=(k, d))
+    z = rng.normal(size=k) * 0.05
+    s_mat = h @ cov @ h.T + np.diag(rng.uniform(0.5, 2.0, size=k)) * 1e-3
+    gain = cov @ h.T @ np.linalg.inv(s_mat)
+    xi, cov_exp = gain @ z, cov - gain @ s_mat @ gain.T
+    lo, hi = (6, N_FIXED) if bias_only else (0, d)
+    keep = np.ones(d, bool)
+    keep[lo:hi] = False
+    if bias_only:  # a Schmidt update: the other rows' block as it was, their ξ̂ zero
+        cov_exp[np.ix_(keep, keep)], xi[keep] = cov[np.ix_(keep, keep)], 0.0
+    a_exp, jl = so3_exp(-xi[:3]), so3_left_jacobian(-xi[:3])
+    lm_exp = lm @ a_exp.T - np.array([jl @ xi[N_FIXED + 3 * s : N_FIXED + 3 * s + 3] for s in np.argsort(slot_lm)])
+    want = (a_exp @ r_hat, a_exp @ p_hat - jl @ xi[3:6], lm_exp, np.r_[b_om, b_v] + xi[6:12])
+    before = (cov.copy(), r_hat.copy(), p_hat.copy(), lm.copy(), b_om.copy(), b_v.copy())
+
+    args = (r_hat, p_hat, b_om, b_v, lm, slot_lm)
+    chol = np.linalg.cholesky(s_mat)
+    d2 = float(np.sum(np.linalg.solve(chol, z) ** 2))
+    assert not whitened_update(cov, d, h @ cov, chol.copy(), z.copy(), k, 0.99 * d2, lo, hi, *args)
+    for got, was in zip((cov, r_hat, p_hat, lm, b_om, b_v), before):
+        assert np.array_equal(got, was)
+    assert whitened_update(cov, d, h @ cov, chol, z.copy(), k, 1.01 * d2, lo, hi, *args)
+    assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max()
+    for got, exp in zip((r_hat, p_hat, lm, np.r_[b_om, b_v]), want):
+        assert np.abs(got - exp).max() <= 1e-12 * np.abs(exp).max()
+    if bias_only:
+        assert np.array_equal(cov[np.ix_(keep, keep)], before[0][np.ix_(keep, keep)])
+        for got, was in zip((r_hat, p_hat, lm), before[1:4]):
+            assert np.array_equal(got, was)
 
 
 def linearisation_noise(z: np.ndarray, srr: np.ndarray, sigma2: float, gate: float) -> np.ndarray:

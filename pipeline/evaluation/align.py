@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slamobs.pipeline.lie import nearest_rotation, rots_to_rotvecs, umeyama
+from slamobs.pipeline.lie import CrossCovariance, nearest_rotation, rots_to_rotvecs, umeyama_fit
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: Other names of the same alignments: rpg_trajectory_evaluation's ``align_type`` (its eval_cfg.yaml) calls the
@@ -157,26 +157,40 @@ def spread_axes(ref_pos: np.ndarray, noise: float | None = None, yaw: bool = Fal
     return spread, noise, int(np.count_nonzero(spread > SPREAD_OVER_NOISE * noise))
 
 
+def truth_spread(ref_pos: np.ndarray, yaw: bool = False) -> tuple[np.ndarray, float, int] | None:
+    """:func:`spread_axes` of the truth positions ``ref_pos`` (N, 3, time order) against their noise, or None where
+    no spread judges them (fewer than 3 rows or a coordinate not finite: the fit's own checks say what is wrong)."""
+    ref = np.asarray(ref_pos, dtype=np.float64)
+    if ref.shape[0] < 3 or not np.all(np.isfinite(ref)):
+        return None
+    return spread_axes(ref, yaw=yaw)
+
+
 def translates(ref_pos: np.ndarray) -> bool:
     """Whether the truth positions ``ref_pos`` (N, 3, time order) spread over their noise along some axis
     (:func:`spread_axes`): False for a rig turning in place, whose positions are one point and its noise."""
-    ref = np.asarray(ref_pos, dtype=np.float64)
-    return ref.shape[0] < 3 or not np.all(np.isfinite(ref)) or spread_axes(ref)[2] > 0
+    spread = truth_spread(ref_pos)
+    return spread is None or spread[2] > 0
 
 
-def rotation_undetermined(ref_pos: np.ndarray, yaw: bool = False, error_m: float | None = None) -> str | None:
+def rotation_undetermined(
+    ref_pos: np.ndarray, yaw: bool = False, error_m: float | None = None, spread: tuple | None = None
+) -> str | None:
     """Why the truth positions ``ref_pos`` (N, 3, time order) cannot fix a rotation, or None when they can. A
     least-squares fit on positions fixes the rotation about an axis only where the positions spread across it: a
     plane or a volume fixes all three axes, a line two (not the turn about itself), a point none. An axis counts
     when the rms spread along it is over ``SPREAD_OVER_NOISE`` times the positions' own noise
     (:func:`position_noise`; at least 1e-9 of the coordinates' size, for a truth without noise). ``yaw``: the
     rotation about z only, which the horizontal positions fix if they spread along one axis (a line). ``error_m``:
-    the fit's residual (one coordinate's rms), the scale instead where it is below that noise."""
+    the fit's residual (one coordinate's rms), the scale instead where it is below that noise. ``spread``:
+    :func:`truth_spread` of ``ref_pos`` where the caller has it (:func:`fit_alignment`, once for this and
+    :func:`upright_fit`)."""
     ref = np.asarray(ref_pos, dtype=np.float64)
-    if ref.shape[0] < 3 or not np.all(np.isfinite(ref)):
+    judged = spread if spread is not None else truth_spread(ref, yaw)
+    if judged is None:
         return None  # the fit's own checks say what is wrong
     axes_needed = 1 if yaw else 2
-    spread, noise, axes = spread_axes(ref, yaw=yaw)
+    spread, noise, axes = judged
     what = "their noise"
     if error_m is not None and error_m < noise:
         spread, noise, axes = spread_axes(ref, error_m, yaw)
@@ -192,13 +206,14 @@ def rotation_undetermined(ref_pos: np.ndarray, yaw: bool = False, error_m: float
     )
 
 
-def undetermined_fit(ref, est, rot, trans, scale, yaw: bool = False) -> str | None:
+def undetermined_fit(ref, est, rot, trans, scale, yaw: bool = False, spread: tuple | None = None) -> str | None:
     """Why a rotation fitted on positions (``rot``, ``trans``, ``scale``: ``ref ≈ s R est + t``; ``rot`` None where
     the fit found the positions degenerate) is not fixed by them: :func:`rotation_undetermined` against the truth
     positions' noise and, only where that says so (seldom: nothing more to compute for a spreading truth), again
     against the fit's residual rms, the estimate's own error. Both must say so: a spread of unordered points
-    (second differences as large as the spread) is fixed by an estimate that matches it, and a truth at rest by none."""
-    why = rotation_undetermined(ref, yaw=yaw)
+    (second differences as large as the spread) is fixed by an estimate that matches it, and a truth at rest by none.
+    ``spread``: :func:`truth_spread` of ``ref`` where the caller has it."""
+    why = rotation_undetermined(ref, yaw=yaw, spread=spread)
     if why is None or rot is None:
         return why
     residual = float(np.sqrt(np.mean(np.sum((apply_alignment(rot, trans, scale, est) - ref) ** 2, axis=1) / 3.0)))
@@ -222,7 +237,9 @@ def world_turns(rots: np.ndarray) -> np.ndarray:
     return rots_to_rotvecs(np.einsum("nij,nkj->nik", rots[1:], rots[:-1]))
 
 
-def upright_fit(ref, est, rot, scaled, ref_rot, est_rot) -> tuple[np.ndarray, np.ndarray, float, str] | None:
+def upright_fit(
+    ref, est, rot, scaled, ref_rot, est_rot, axes: int, cc: CrossCovariance
+) -> tuple[np.ndarray, np.ndarray, float, str] | None:
     """The least-squares fit of ``ref ≈ s R est + t`` that keeps the estimate's up side up on a flat truth, where
     Umeyama's ``rot`` turns it over: ``(R, t, s, why)``, or None where ``rot`` stands. Truth positions in a plane
     (:func:`spread_axes`: two axes over their noise) give a cross-covariance ``U D Vᵀ`` of rank 2, and two
@@ -234,20 +251,21 @@ def upright_fit(ref, est, rot, scaled, ref_rot, est_rot) -> tuple[np.ndarray, np
     rigid estimate has no mirror, so the side is the attitudes' to say: the one on which the estimate turns about
     ``V₃`` as the truth turns about ``U₃`` (the sign of ``Σ (U₃ · ω_ref,i)(V₃ · ω_est,i)`` over
     :func:`world_turns`, which a body frame convention does not change); where they say the other, the second
-    rotation is the fit (scale ``(d₁ − d₂ ∓ d₃)/σ²_est``)."""
+    rotation is the fit (scale ``(d₁ − d₂ ∓ d₃)/σ²_est``). ``axes``: the truth's :func:`spread_axes` count, ``cc``:
+    the decomposition Umeyama's fit made (:func:`~slamobs.pipeline.lie.umeyama_fit`; its ``σ²_est`` when
+    ``scaled``), both as :func:`fit_alignment` computed them."""
     if ref_rot is None or est_rot is None or len(ref_rot) < len(ref) or len(est_rot) < len(ref) or len(ref) < 3:
         return None
-    if spread_axes(ref)[2] != 2:
+    if axes != 2:
         return None
-    xc, yc = est - est.mean(axis=0), ref - ref.mean(axis=0)
-    u, d, vt = np.linalg.svd(yc.T @ xc / len(ref))
+    u, d, vt = cc.u, cc.d, cc.vt
     turns = float(np.sum((world_turns(ref_rot[: len(ref)]) @ u[:, 2]) * (world_turns(est_rot[: len(ref)]) @ vt[2])))
     if turns * float(u[:, 2] @ rot @ vt[2]) >= 0.0:
         return None  # Umeyama's side is the turns' (or neither side turns)
     sign = np.sign(np.linalg.det(u) * np.linalg.det(vt)) or 1.0
     flip = np.array([1.0, -1.0, -sign])
     turned = u @ np.diag(flip) @ vt
-    scale = float(d @ flip / np.mean(np.sum(xc**2, axis=1))) if scaled else 1.0
+    scale = float(d @ flip / cc.var_src) if scaled else 1.0
     why = (
         f"the truth positions lie in a plane, which the estimate's positions fit as well turned over (a half turn "
         f"about an in-plane axis and a mirror within the plane); evo's Umeyama rotation turns the estimate's z axis "
@@ -255,7 +273,7 @@ def upright_fit(ref, est, rot, scaled, ref_rot, est_rot) -> tuple[np.ndarray, np
         f"the fit is the least-squares one on the side where it turns with them (its z axis "
         f"{gravity_tilt_deg(turned):.1f} deg off; alignment_transformation_sim3 is this fit, not evo's)"
     )
-    return turned, ref.mean(axis=0) - scale * turned @ est.mean(axis=0), scale, why
+    return turned, cc.mu_dst - scale * turned @ cc.mu_src, scale, why
 
 
 def canonical(kind: str) -> str:
@@ -318,16 +336,18 @@ def fit_alignment(
         rot, trans = yaw_fit_first(ref[0], est[0], ref_rot[0], est_rot[0])
         return Alignment(kind, rot, trans, 1.0, 1, _sim3(rot, trans, 1.0))
     checked = spread_check and kind in ("se3", "sim3", "yaw")
+    spread = truth_spread(ref[:m], yaw=kind == "yaw") if checked else None  # once: the checks' and upright_fit's
+    cc = None
     try:
         if kind == "yaw":
             rot, trans, scale = (*yaw_fit(est[:m], ref[:m]), 1.0)
         else:
-            rot, trans, scale = umeyama(est[:m], ref[:m], with_scale=kind in SCALED_ALIGNMENTS)
+            rot, trans, scale, cc = umeyama_fit(est[:m], ref[:m], with_scale=kind in SCALED_ALIGNMENTS)
     except ValueError:  # degenerate positions: said as the spread says it, where it does
-        if not checked or rotation_undetermined(ref[:m], yaw=kind == "yaw") is None:
+        if not checked or rotation_undetermined(ref[:m], yaw=kind == "yaw", spread=spread) is None:
             raise
         rot, trans, scale = None, None, 1.0
-    why = undetermined_fit(ref[:m], est[:m], rot, trans, scale, yaw=kind == "yaw") if checked else None
+    why = undetermined_fit(ref[:m], est[:m], rot, trans, scale, kind == "yaw", spread) if checked else None
     if why and kind == "yaw":
         raise ValueError(f"yaw alignment: {why}")
     if why:
@@ -335,7 +355,9 @@ def fit_alignment(
             raise ValueError(f"{kind} alignment: {why}")
         rot, trans = attitude_fit(ref[:m], est[:m], ref_rot[:m], est_rot[:m])
         return Alignment(ATTITUDE, rot, trans, 1.0, m, _sim3(rot, trans, 1.0), kind, why)
-    up = upright_fit(ref[:m], est[:m], rot, kind == "sim3", ref_rot, est_rot) if checked and kind != "yaw" else None
+    up = None
+    if checked and kind != "yaw" and spread is not None:
+        up = upright_fit(ref[:m], est[:m], rot, kind == "sim3", ref_rot, est_rot, spread[2], cc)
     if up is not None:
         evo_fit = _sim3(rot, trans, scale)
         rot, trans, scale, upright = up

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from slamobs.pipeline.blocks import blockwise, row_norms3
-from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
+from slamobs.pipeline.evaluation.align import apply_alignment
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
 from slamobs.pipeline import kernel_cache
 from slamobs.pipeline.kernel_cache import KERNEL_ROWS, njit
-from slamobs.pipeline.lie import quat_angles, quats_to_rots
+from slamobs.pipeline.lie import quat_angles, quats_to_rots, umeyama
 from slamobs.pipeline.noise import chi2_quantile, nees_bounds  # noqa: F401 (the report's bounds, defined with riekf's)
 from slamobs.pipeline.simd import fma
 

@@ -1054,13 +1054,43 @@ def _gain(hp, chol, z, k3, d):
 
 
 @njit(cache=True)
+def whitened_update(cov, d, hs, chol, z, k, gate, lo, hi, r_hat, p_hat, b_om, b_v, lm, slot_lm):
+    """One Kalman update of the whole (mirrored) state from ``k`` rows without a pending propagation (the floor's,
+    :func:`_planar_update`, and a still window's, :func:`_still_update`): with ``hs`` = H Σ (k × d, overwritten by
+    W = L⁻¹ H Σ) and ``chol`` = L (S = L Lᵀ), :func:`_gain` gives W, y = L⁻¹ z (in place of ``z``) and ξ̂ = Wᵀ y;
+    skipped (False) when the innovation's d² = |y|² exceeds ``gate``; else Σ ← Σ − WᵀW and :func:`_correct`.
+    Rows ``lo .. hi − 1`` and their correlations only (a Schmidt update: the other rows' ξ̂ zero, their block of Σ
+    unchanged); ``0 .. d − 1`` is the plain update. A detection frame's downdate is in :func:`apply`, the pending
+    propagation's pass (:func:`update`). Public: tests/test_riekf_exactness.py checks it against dense algebra."""
+    xi = _gain(hs, chol, z, k, d)
+    d2 = 0.0
+    for r in range(k):
+        d2 += z[r] * z[r]
+    if d2 > gate:
+        return False
+    for j in range(d):
+        if not lo <= j < hi:
+            xi[j] = 0.0
+    for i in range(d):  # Σ ← Σ − WᵀW
+        for j in range(d):
+            if not (lo <= i < hi or lo <= j < hi):
+                continue
+            v = 0.0
+            for r in range(k):
+                v += hs[r, i] * hs[r, j]
+            cov[i, j] -= v
+    _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+    return True
+
+
+@njit(cache=True)
 def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     """The floor's pseudo-measurements (module docstring, "Planar motion"): the body's up axis ``R e3`` has no part
     along the floor's tangents ``t1``, ``t2`` and the position's height ``nᵀP`` is the start's. ``plane``: on, ``n``
     (3), the height, ``t1`` (3), ``t2`` (3), the tilt's and the height's σ, the period, the median range. With
     ``R ≈ exp(−ξ_R)R̂``, ``P ≈ P̂ − ξ_P + [P̂]×ξ_R``: ``z_k = t_kᵀR̂e3`` with ``H_k = −t_kᵀ[R̂e3]×`` on ``ξ_R``,
-    ``z_3 = nᵀP̂ − h`` with ``H_3 = (−nᵀ[P̂]×, nᵀ)``; one Kalman update of the whole (mirrored) state, then
-    :func:`_correct`."""
+    ``z_3 = nᵀP̂ − h`` with ``H_3 = (−nᵀ[P̂]×, nᵀ)``; one Kalman update of the whole (mirrored) state
+    (:func:`whitened_update`)."""
     _mirror(cov, d)
     h = np.zeros((3, 6))
     z = np.empty(3)
@@ -1097,20 +1127,7 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     s[2, 2] += s[2, 2] * f / (s[2, 2] - f) if s[2, 2] > 1.001 * f else 1e6 * (s[2, 2] + f)
     if not cholesky_lower(s, np.int64(3)):
         return
-    for j in range(d):  # W = L⁻¹ H Σ, column by column
-        w0 = b[0, j] / s[0, 0]
-        w1 = (b[1, j] - s[1, 0] * w0) / s[1, 1]
-        b[0, j], b[1, j], b[2, j] = w0, w1, (b[2, j] - s[2, 0] * w0 - s[2, 1] * w1) / s[2, 2]
-    v0 = z[0] / s[0, 0]
-    v1 = (z[1] - s[1, 0] * v0) / s[1, 1]
-    v2 = (z[2] - s[2, 0] * v0 - s[2, 1] * v1) / s[2, 2]
-    xi = np.empty(d)
-    for j in range(d):
-        xi[j] = b[0, j] * v0 + b[1, j] * v1 + b[2, j] * v2
-    for i in range(d):  # Σ ← Σ − WᵀW
-        for j in range(d):
-            cov[i, j] -= b[0, i] * b[0, j] + b[1, i] * b[1, j] + b[2, i] * b[2, j]
-    _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+    whitened_update(cov, d, b, s, z, np.int64(3), np.inf, np.int64(0), d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
 
 
 @njit(cache=True)
@@ -1118,10 +1135,10 @@ def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, g
     """A still stretch's pseudo-measurement (module docstring, "At rest"): over the ``fs[_STILL_N]`` samples summed
     since ``fs[_STILL_T0]`` the body neither turned nor moved, so the gyro's mean reads its bias and the velocity's
     its bias, each with its density's variance over the span (``q_om``, ``q_v``); ``H`` the identity on the bias
-    rows; skipped when the innovation's d² exceeds ``gate``. One Kalman update of the whole (mirrored) state, then
-    :func:`_correct`; while a rotation row's variance exceeds ``HEADING_UNKNOWN_VAR`` (the heading unknown) the
-    biases' rows and their correlations only (a Schmidt update: the pose and the map neither move nor narrow, since
-    the correlations that would move them were propagated about a heading that may be turns off)."""
+    rows; skipped when the innovation's d² exceeds ``gate``. One Kalman update of the whole (mirrored) state
+    (:func:`whitened_update`); while a rotation row's variance exceeds ``HEADING_UNKNOWN_VAR`` (the heading
+    unknown) the biases' rows and their correlations only (a Schmidt update: the pose and the map neither move nor
+    narrow, since the correlations that would move them were propagated about a heading that may be turns off)."""
     n = fs[_STILL_N]
     span = (fs[_T] - fs[_STILL_T0]) * n / max(n - 1.0, 1.0)
     if n < 2.0 or span <= 0.0:
@@ -1140,39 +1157,14 @@ def _still_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, fs, q_om, q_v, g
         s[3 + r, 3 + r] += q_v[r] / span
     if not cholesky_lower(s, np.int64(6)):
         return
-    b = np.empty((6, d))  # W = L⁻¹ H Σ, column by column
-    for j in range(d):
-        for r in range(6):
-            v = cov[6 + r, j]
-            for q in range(r):
-                v -= s[r, q] * b[q, j]
-            b[r, j] = v / s[r, r]
-    y = np.empty(6)  # L⁻¹ z
-    d2 = 0.0
+    hs = np.empty((6, d))  # H Σ: the bias rows
     for r in range(6):
-        v = z[r]
-        for q in range(r):
-            v -= s[r, q] * y[q]
-        y[r] = v / s[r, r]
-        d2 += y[r] * y[r]
-    if d2 > gate:
-        return
-    unknown = max(cov[0, 0], cov[1, 1], cov[2, 2]) > HEADING_UNKNOWN_VAR
-    xi = np.zeros(d)
-    for j in range(d):
-        if unknown and not 6 <= j < N_FIXED:
-            continue
-        for r in range(6):
-            xi[j] += b[r, j] * y[r]
-    for i in range(d):  # Σ ← Σ − WᵀW (the bias rows and columns only while the heading is unknown)
         for j in range(d):
-            if unknown and not (6 <= i < N_FIXED or 6 <= j < N_FIXED):
-                continue
-            v = 0.0
-            for r in range(6):
-                v += b[r, i] * b[r, j]
-            cov[i, j] -= v
-    _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+            hs[r, j] = cov[6 + r, j]
+    lo, hi = np.int64(0), d
+    if max(cov[0, 0], cov[1, 1], cov[2, 2]) > HEADING_UNKNOWN_VAR:  # the heading unknown: the bias rows only
+        lo, hi = np.int64(6), np.int64(N_FIXED)
+    whitened_update(cov, d, hs, s, z, np.int64(6), gate, lo, hi, r_hat, p_hat, b_om, b_v, lm, slot_lm)
 
 
 @njit(cache=True)
