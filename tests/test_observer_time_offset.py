@@ -321,7 +321,7 @@ def test_a_lever_arm_that_explains_the_lag_and_scale_is_named_in_their_place():
     )
     sim = simulate(sc, noise=nm, seed=4416, duration=60.0, imu_rate=200.0, odom_rate=10.0)
     clean = time_offset.estimate(align(expected_streams(sim)))
-    assert time_offset.note(None, clean) == [] and time_offset.arm_explains(clean) == []
+    assert time_offset.note(None, clean) == [] and time_offset.arm_explains(clean) == {}
     o = sim.odom
     omega = sc.sample((o.t_ns - sim.start_ns) * 1e-9).omega
     ahead = replace(sim, odom=replace(o, linear=o.linear + np.cross(omega, [0.2, 0.0, 0.0])))

@@ -955,7 +955,7 @@ def _beats(frames: int, ratio: float, dof: int) -> bool:
     return frames * np.log(max(ratio, 1e-300)) > (chi2_quantile(LEVEL_CHOICE_P, dof) if dof > 0 else 0.0)
 
 
-def arm_explains(offset: dict) -> list[str]:
+def arm_explains(offset: dict) -> dict[str, str]:
     """What the lever arm (:func:`lever_arm`, seen beyond its standard errors: :func:`_arm_seen`) explains of the
     other misreads the pairs name without it: the velocity lag (:func:`velocity_lag_sentence`) where the arm
     (three unknowns) fits the pairs better than the lag (one) by :func:`_beats`; each velocity axis named as scaled
@@ -964,20 +964,22 @@ def arm_explains(offset: dict) -> list[str]:
     not explained: on a figure 8's curves a sideways arm moves the pairs as a forward scale does, and a velocity
     3.6x off had its z scale so taken). A point 0.2 m ahead of a hand-held rig's origin
     (seed=4127) reads without it as a lag of 0.124 s (1.11x) and a y scale of 0.546x; the arm fits 1.30x, and
-    with it the y scale is 0.997. Empty otherwise."""
+    with it the y scale is 0.997. Keyed ``lag`` and ``scale``, each the phrase that names what it explains; empty
+    otherwise."""
     arm = offset.get("lever_arm")
     if not _arm_seen(offset) or "frames" not in arm:
-        return []
-    said, scale = [], offset.get("velocity_scale") or {}
+        return {}
+    said, scale = {}, offset.get("velocity_scale") or {}
     lag = offset.get("velocity_lag")
     if velocity_lag_sentence(lag, offset["pairs"]) is not None and _beats(arm["frames"], arm["gain"] / lag["gain"], 2):
-        said.append(f"the linear velocity's lag ({lag['lag_s']:.3f} s)")
+        said["lag"] = f"the linear velocity's lag ({lag['lag_s']:.3f} s)"
     if scale.get("with_arm") and _beats(arm["frames"], arm["over_scale"], 3 - int(scale["axes"])):
         kept = {phrase.split(" ", 2)[1] for phrase in velocity_misread(scale["with_arm"])}
         measured = {axis for axis, g in zip("xyz", scale["with_arm"]["scale"], strict=True) if g is not None}
         named = [(phrase.split(" ", 2)[1], g) for phrase, g in _misread_axes(scale)]
         gone = [f"{axis} {g:.3g}x" for axis, g in named if axis in measured and axis not in kept]
-        said += [f"the velocity's scale along {' and '.join(gone)}"] if gone else []
+        if gone:
+            said["scale"] = f"the velocity's scale along {' and '.join(gone)}"
     return said
 
 
@@ -994,7 +996,8 @@ def lever_arm_sentence(offset: dict) -> str | None:
         return None  # the scales fit the pairs better than the arm: a velocity scale (a figure 8's twist x3.6: 130x)
     r, sigma = np.asarray(arm["r_m"]), np.asarray(arm["sigma_m"])
     where = ", ".join(f"{v:+.3f}" for v in r)
-    instead = f"; fitted without it, the pairs read {' and '.join(explained)}, which it explains" if explained else ""
+    read = " and ".join(explained.values())
+    instead = f"; fitted without it, the pairs read {read}, which it explains" if explained else ""
     return (
         f"the detections fit the odometry {arm['gain']:.3g}x better as the velocity of a point ({where}) m from the "
         f"body's origin (± {float(np.max(sigma)):.2g} m; {offset['pairs']} detection pairs, the odometry's bias "
@@ -1579,10 +1582,10 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         found.append((arm, WHOLE_ESTIMATES[1], ("odometry", "detections", "camera")))
         # the lag and the scales the arm explains are not said (arm_explains); the scales are those fitted with it
         explained = arm_explains(offset)
-        lag = None if any(e.startswith("the linear velocity's lag") for e in explained) else lag
+        lag = None if "lag" in explained else lag
         # where it explains a scale, the scales said are those fitted with it (an arm named by its gain alone leaves
         # them as fitted without it)
-        scale = scale["with_arm"] if scale and any(e.startswith("the velocity's scale") for e in explained) else scale
+        scale = scale["with_arm"] if scale and "scale" in explained else scale
     late = odometry_late(offset, topics.get("linear_velocity", "ODOMETRY"))
     if late is not None:
         found.append((late, WHOLE_ESTIMATES[0], ("gyro", "odometry", "detections")))
