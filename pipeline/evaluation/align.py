@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.lie import nearest_rotation, rots_to_rotvecs, umeyama
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
@@ -400,7 +401,8 @@ def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | 
     ``axes`` are the truth positions' principal axes (rows, largest spread first, ``spread_m`` the rms along each),
     ``positions_se_deg`` the standard error of the fit's turn about each (:func:`fit_weight` · :func:`turn_normal`
     of the aligned estimate's positions about their centre). The attitudes fix the same rotation through the
-    world turns (:func:`world_turns`, which a body frame convention does not change): ``ω_ref,i ≈ R ω_est,i``, the
+    world turns (:func:`world_turns`, which a body frame convention does not change; taken a block of rows at a
+    time, no (N, 3, 3) array held): ``ω_ref,i ≈ R ω_est,i``, the
     least-squares (Procrustes) fit of these vectors, whose turn about each axis has ``turns_se_deg``.
     ``weak_axes``: the axes about which the positions fix the turn less well than the turns do. ``weighed``: the
     least-squares fit of both at once, each term weighted by its :func:`fit_weight` (``R`` the rotation nearest
@@ -431,7 +433,9 @@ def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | 
     }
     if ref_rot is None or est_rot is None or len(ref_rot) < len(ref) or len(est_rot) < len(ref):
         return out
-    w_ref, w_est = world_turns(ref_rot[: len(ref)]), world_turns(est_rot[: len(ref)])
+    w_ref, w_est = (
+        np.concatenate([world_turns(r[b.start : b.stop + 1]) for b in row_blocks(len(ref))]) for r in (ref_rot, est_rot)
+    )
     turns = w_est @ nearest_rotation(w_ref.T @ w_est).T
     info_t = fit_weight(turns, turns - w_ref) * turn_normal(turns)
     se_t, se_p = _standard_errors_deg(info_t, axes), out["positions_se_deg"]
