@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.lie import CrossCovariance, nearest_rotation, rots_to_rotvecs, umeyama_fit
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
@@ -368,3 +369,111 @@ def fit_alignment(
     if kind == "scale":
         return Alignment(kind, np.eye(3), np.zeros(3), scale, m, evo)
     return Alignment(kind, rot, trans, scale, m, evo)
+
+
+def batch_sums(x: np.ndarray) -> np.ndarray:
+    """The sums of the rows of ``x`` (N, k, time order) over ⌊√N⌋ runs of consecutive rows of near-equal length
+    (batch means' usual count: batches grow with the log, so that an error correlated along the path falls
+    mostly within one, and their number grows too, so that their spread is an estimate)."""
+    n = x.shape[0]
+    b = max(int(np.sqrt(n)), 1)
+    return np.add.reduceat(x, np.linspace(0, n, b + 1).astype(np.intp)[:-1], axis=0)
+
+
+def turn_normal(q: np.ndarray) -> np.ndarray:
+    """``Σ (|q|² I − q qᵀ)`` of the points ``q`` (N, 3, centred on the turn's centre): the normal matrix of the
+    small turn ``δ`` in a least-squares fit of ``q`` (``r + δ × q``); zero about an axis they do not spread
+    across."""
+    q = np.asarray(q, dtype=np.float64)
+    return float(np.sum(q * q)) * np.eye(3) - q.T @ q
+
+
+def fit_weight(q: np.ndarray, r: np.ndarray) -> float:
+    """The weight (per m² of squared residual) of a least-squares fit of the points ``q`` (N, 3, time order, the
+    fitted side centred on the turn's centre) with residuals ``r`` (fitted − target): ``1 / (σ² f)``, so that
+    ``weight · turn_normal(q)`` is the inverse covariance (rad⁻²) of the turn it fixes. ``σ²`` is the residuals'
+    variance per coordinate, ``f`` (at least 1) how much more the gradient ``Σ q × r`` varies than that of
+    independent residuals (``σ² tr H``): the trace of its covariance from :func:`batch_sums` over it (residuals
+    correlated along the path count as the batches they fill, not as their rows). One scalar, not a 3x3
+    covariance of the batches: a short log's few batches fix one number, not six."""
+    q = np.asarray(q, dtype=np.float64)
+    r = np.asarray(r, dtype=np.float64)
+    var = max(float(np.mean(r * r)), 1e-300)
+    g = batch_sums(np.cross(q, r))
+    b, trace = g.shape[0], 2.0 * float(np.sum(q * q))
+    f = 1.0
+    if b >= 2 and trace > 0.0:
+        g = g - g.mean(axis=0)  # the fit's gradient sums to 0 at its optimum: the batches' spread about it
+        f = max(1.0, float(np.sum(g * g)) * b / (b - 1.0) / (var * trace))
+    return 1.0 / (var * f)
+
+
+def _standard_errors_deg(info: np.ndarray, axes: np.ndarray) -> list[float | None]:
+    """The standard error (deg) of the turn about each of ``axes`` (rows) under the inverse covariance ``info``
+    (None about an axis it does not fix: information under 1e-12 of its largest)."""
+    cov = np.linalg.pinv(info, rcond=1e-12)
+    top = max(float(np.max(np.linalg.eigvalsh(info))), 0.0)
+    out: list[float | None] = []
+    for a in axes:
+        fixed = float(a @ info @ a) > 1e-12 * top
+        out.append(float(np.degrees(np.sqrt(max(float(a @ cov @ a), 0.0)))) if fixed else None)
+    return out
+
+
+def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | None:
+    """How well the positions fix the rotation of the least-squares fit ``al`` (se3 or sim3 of ``ref ≈ s R est +
+    t``, N pairs in time order), and the fit that weighs the attitudes too; None for another kind or < 9 pairs.
+
+    ``axes`` are the truth positions' principal axes (rows, largest spread first, ``spread_m`` the rms along each),
+    ``positions_se_deg`` the standard error of the fit's turn about each (:func:`fit_weight` · :func:`turn_normal`
+    of the aligned estimate's positions about their centre). The attitudes fix the same rotation through the
+    world turns (:func:`world_turns`, which a body frame convention does not change; taken a block of rows at a
+    time, no (N, 3, 3) array held): ``ω_ref,i ≈ R ω_est,i``, the
+    least-squares (Procrustes) fit of these vectors, whose turn about each axis has ``turns_se_deg``.
+    ``weak_axes``: the axes about which the positions fix the turn less well than the turns do. ``weighed``: the
+    least-squares fit of both at once, each term weighted by its :func:`fit_weight` (``R`` the rotation nearest
+    ``w_p s Σ (p_ref − μ_ref)(p_est − μ_est)ᵀ + w_t Σ ω_ref ω_estᵀ``, the translation putting the means together,
+    the scale kept), with ``turn_deg``, how far it turns the estimate from ``al``. Without rotations: the
+    positions' part alone."""
+    if al.kind not in ("se3", "sim3"):
+        return None
+    ref = np.asarray(ref, dtype=np.float64)
+    est = np.asarray(est, dtype=np.float64)
+    if ref.shape[0] < 9:
+        return None
+    centred = ref - ref.mean(axis=0)
+    values, vectors = np.linalg.eigh(centred.T @ centred / ref.shape[0])
+    axes = vectors[:, ::-1].T  # largest spread first
+    aligned = al.positions(est)
+    q = aligned - aligned.mean(axis=0)
+    weight_p = fit_weight(q, aligned - ref)
+    info_p = weight_p * turn_normal(q)
+    out: dict = {
+        "axes": [[float(v) for v in a] for a in axes],
+        "spread_m": [float(np.sqrt(max(v, 0.0))) for v in values[::-1]],
+        "n_batches": int(batch_sums(ref[:, :1]).shape[0]),
+        "positions_se_deg": _standard_errors_deg(info_p, axes),
+        "turns_se_deg": None,
+        "weak_axes": [],
+        "weighed": None,
+    }
+    if ref_rot is None or est_rot is None or len(ref_rot) < len(ref) or len(est_rot) < len(ref):
+        return out
+    w_ref, w_est = (
+        np.concatenate([world_turns(r[b.start : b.stop + 1]) for b in row_blocks(len(ref))]) for r in (ref_rot, est_rot)
+    )
+    turns = w_est @ nearest_rotation(w_ref.T @ w_est).T
+    info_t = fit_weight(turns, turns - w_ref) * turn_normal(turns)
+    se_t, se_p = _standard_errors_deg(info_t, axes), out["positions_se_deg"]
+    out["turns_se_deg"] = se_t
+    out["weak_axes"] = [k for k in range(3) if se_t[k] is not None and (se_p[k] is None or se_p[k] > se_t[k])]
+    m = weight_p * al.scale * (centred.T @ (est - est.mean(axis=0))) + fit_weight(turns, turns - w_ref) * (
+        w_ref.T @ w_est
+    )
+    weighed = nearest_rotation(m)
+    trans = ref.mean(axis=0) - al.scale * weighed @ est.mean(axis=0)
+    out["weighed"] = {
+        "alignment": Alignment(al.kind, weighed, trans, al.scale, al.n_points, _sim3(weighed, trans, al.scale)),
+        "turn_deg": float(np.degrees(np.linalg.norm(rots_to_rotvecs((weighed @ np.asarray(al.rot).T)[None])[0]))),
+    }
+    return out
