@@ -14,6 +14,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round8 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round9 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round10 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set extrinsic10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
@@ -36,6 +37,9 @@ latency (docs/benchmarks.md, "Logs nobody has run yet, round 9"). ``--set round1
 stated camera extrinsic shifted or tilted, ids misread at random, one stream's clock stepping back, a few stamps 0, a
 slow walk, covariances stated wrong per stream, a twist in km/h, biased or thinned at random, a short-sighted camera,
 IMU stamps out of order or drifting, a vibrating gyro (docs/benchmarks.md, "Logs nobody has run yet, round 10").
+``--set extrinsic10``: session 38's (``EXTRINSIC10``): the camera's stated position 2-10 cm off on a hand-held rig,
+a flight and a ground robot, its stated rotation 2 or 5 deg off in pitch, and clean controls (docs/benchmarks.md, "A
+camera extrinsic stated 5 cm off").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
@@ -536,6 +540,24 @@ ROUND10 = (
     Case(4395, "handheld", 120, "IMU clock drifts 1e-3", imu_drift=1e-3, **R6),
     Case(4396, "handheld", 90, "gyro vibrates 0.3 rad/s at 37 Hz", gyro_vibe=(37.0, 0.3), **R6),
 )
+#: the camera's stated extrinsic off by 2-10 cm or 2-5 deg, and controls (session 38, docs/benchmarks.md "A camera
+#: extrinsic stated 5 cm off")
+EXTRINSIC10 = (
+    Case(4520, "handheld", 90, "camera extrinsic stated 2 cm off (x)", tf_shift=(0.02, 0.0, 0.0), **R6),
+    Case(4521, "handheld", 90, "camera extrinsic stated 5 cm off (y)", tf_shift=(0.0, 0.05, 0.0), **R6),
+    Case(4522, "handheld", 90, "camera extrinsic stated 10 cm off (x)", tf_shift=(0.1, 0.0, 0.0), **R6),
+    Case(
+        4523, "handheld", 90, "camera extrinsic stated 5 cm off (x, y, z 2.9 cm)", tf_shift=(0.029, 0.029, 0.029), **R6
+    ),
+    Case(4524, "flight", 90, "flight, camera extrinsic stated 5 cm off (x)", tf_shift=(0.05, 0.0, 0.0), **R6),
+    Case(4525, "ground", 180, "ground, camera extrinsic stated 5 cm off (x)", tf_shift=(0.05, 0.0, 0.0), **R6),
+    Case(4526, "handheld", 90, "camera extrinsic stated 2 deg off in pitch", tf_tilt_deg=(0.0, 2.0), **R6),
+    Case(4527, "handheld", 90, "camera extrinsic stated 5 deg off in pitch", tf_tilt_deg=(0.0, 5.0), **R6),
+    Case(4528, "handheld", 90, "clean", **R6),
+    Case(4529, "flight", 90, "flight, clean", **R6),
+    Case(4530, "ground", 180, "ground, clean", **R6),
+    Case(4531, "handheld", 90, "camera extrinsic right, detections sigma (0.1, 0.02)", law=(0.1, 0.02), **R6),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -548,6 +570,7 @@ SETS = {
     "round9": ROUND9,
     "restriekf": RESTRIEKF,
     "round10": ROUND10,
+    "extrinsic10": EXTRINSIC10,
 }
 
 
