@@ -425,7 +425,7 @@ LOST_BY_TRUTH = f"{BY_TRUTH} its estimate never locked on to the motion"
 #: (``slam_metrics.COARSE_SHARE`` qualifies the verdict from 0.1, lost is from 1): half the path's own RMS spread
 #: about its centre, the path's shape is no longer resolved, only where it went. A round rule, not fitted: MR.CLAM's
 #: riekf runs are coarse at 0.14-0.78 of their paths' 1.5-2.4 m RMS (6 r3 and 7 r4 at 0.78 and 0.67 warned; batch
-#: does 0.09-0.2 m APE there); a hand-held rig whose camera sees 2.5 m only (seed=4393) is warned as not converged.
+#: does 0.07-0.11 m APE there); a hand-held rig whose camera sees 2.5 m only (seed=4393) is warned as not converged.
 COARSE_WARN_SHARE = 0.5
 
 #: What each kind of estimator is told to do when the truth finds it lost, not converged or coarse
