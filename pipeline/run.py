@@ -1264,7 +1264,7 @@ def _evaluate(
     """
     from slamobs.pipeline.evaluation import evaluate_tables, write_report
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
-    from slamobs.pipeline.evaluation.report import add_run_context, aligned_rows, with_lost_warnings
+    from slamobs.pipeline.evaluation.report import add_run_context, aligned_rows, with_verdict_warnings
     from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.trajectory_evaluation import offset_record
     from slamobs.pipeline.writers import read_columns
@@ -1301,7 +1301,7 @@ def _evaluate(
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
         notes += checked_notes(check, report)
-        notes[:] = with_lost_warnings(notes, report, metadata)  # a verdict of lost among the warnings
+        notes[:] = with_verdict_warnings(notes, report, metadata)  # the truth's verdict among the warnings
         add_run_context(report, notes, metadata)
         write_report(
             report,

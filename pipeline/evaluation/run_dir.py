@@ -29,7 +29,7 @@ from slamobs.pipeline.evaluation.report import (
     REPORT_FILES,
     add_run_context,
     evaluate_report,
-    with_lost_warnings,
+    with_verdict_warnings,
     write_report,
 )
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, recorded_offset, truth_in_body
@@ -403,7 +403,7 @@ def report_run(
             more_figures=run_figure_jobs(tables, with_biases=False) if drawn else [],
         )
         meta = {**run.meta, "figures": report.get("figures", []), "hints": report.get("hints") or []}
-        meta["notes"] = with_lost_warnings(list(run.meta.get("notes") or []), report, run.meta)
+        meta["notes"] = with_verdict_warnings(list(run.meta.get("notes") or []), report, run.meta)
         _stage_run_json(meta, ti.source, staged, exports)
 
     return report, _replace_report_files(run, fill)

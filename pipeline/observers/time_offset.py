@@ -932,7 +932,7 @@ def lever_arm(
         "r_m": [round(float(v), 4) for v in x[:3]],
         "sigma_m": [float(v) for v in sigma[:3]],
         "gain": alone / cost,
-        "over_scale": float(scale["cost"]) / max(cost, 1e-300),
+        "over_scale": None if scale.get("cost") is None else float(scale["cost"]) / max(cost, 1e-300),
         "frames": frames,
     }
 
@@ -973,7 +973,8 @@ def arm_explains(offset: dict) -> dict[str, str]:
     lag = offset.get("velocity_lag")
     if velocity_lag_sentence(lag, offset["pairs"]) is not None and _beats(arm["frames"], arm["gain"] / lag["gain"], 2):
         said["lag"] = f"the linear velocity's lag ({lag['lag_s']:.3f} s)"
-    if scale.get("with_arm") and _beats(arm["frames"], arm["over_scale"], 3 - int(scale["axes"])):
+    fitted = scale.get("with_arm") and arm.get("over_scale") is not None
+    if fitted and _beats(arm["frames"], arm["over_scale"], 3 - int(scale["axes"])):
         kept = {phrase.split(" ", 2)[1] for phrase in velocity_misread(scale["with_arm"])}
         measured = {axis for axis, g in zip("xyz", scale["with_arm"]["scale"], strict=True) if g is not None}
         named = [(phrase.split(" ", 2)[1], g) for phrase, g in _misread_axes(scale)]
@@ -992,7 +993,8 @@ def lever_arm_sentence(offset: dict) -> str | None:
     if not _arm_seen(offset) or (arm["gain"] < LEVER_ARM_GAIN and not explained):
         return None
     scale = offset.get("velocity_scale") or {}
-    if "frames" in arm and _beats(arm["frames"], 1.0 / arm["over_scale"], int(scale.get("axes", 3)) - 3):
+    over = arm.get("over_scale")
+    if over is not None and _beats(arm["frames"], 1.0 / over, int(scale.get("axes", 3)) - 3):
         return None  # the scales fit the pairs better than the arm: a velocity scale (a figure 8's twist x3.6: 130x)
     r, sigma = np.asarray(arm["r_m"]), np.asarray(arm["sigma_m"])
     where = ", ".join(f"{v:+.3f}" for v in r)
@@ -1036,7 +1038,9 @@ def velocity_scale(
     bias (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity), nor one
     along which the detections see the body hardly move (the scale times the velocity's displacement, against the
     largest axis's: a ground robot's y or z whose velocity as read is noise, 0.0016 ± 0.12 and -0.07 ± 0.16 on
-    ``unseen_logs.py``'s ground logs, which were named as misread). The velocity
+    ``unseen_logs.py``'s ground logs, which were named as misread). Only the pairs whose span holds no gap of the
+    velocity's samples are fitted (:func:`_covered_pairs`: across a gap the velocity is interpolated, not
+    measured). The velocity
     in another unit or of the wrong sign on an axis is no noise the estimators can absorb (MR.CLAM 6 r1 in km/h:
     riekf 0.49 -> 0.89 m, with its sign flipped: lost, and no word of the velocity).
 
@@ -1055,13 +1059,23 @@ def velocity_scale(
     fit with the lever arm fitted too, under ``with_arm`` (:func:`lever_arm_sentence` reads the scales so)."""
     base, read, jac = fit
     d = _velocity_displacements(c, shift, read, base)
+    # only the pairs whose span the velocity's samples cover: across a gap of the odometry (samples lost) the velocity
+    # is interpolated, its noise held over the gap: 70 % of a 10 Hz odometry lost at random (seed=4392, gaps up to
+    # 2.3 s) gave a ground robot's lateral axis a "motion" of held noise, read 0.276x as far "in km/h?"
+    covered = _covered_pairs(c, shift)
+    if not covered.all():
+        base, d, jac, c = base[covered], d[covered], jac[covered], _PairsOf(c, covered)
+        arm = None if arm is None else arm[covered]
     out = _scale_fit(c, d, base, jac)
     return out if arm is None else {**out, "with_arm": _scale_fit(c, d, base, np.concatenate([arm, jac], axis=2))}
 
 
 def _scale_fit(c: Consistency, d: np.ndarray, base: np.ndarray, jac: np.ndarray) -> dict:
     """:func:`velocity_scale`'s fit of the axes' displacements ``d`` with the columns ``jac`` (the bias's, the
-    lever arm's too where given)."""
+    lever arm's too where given); no scale (``cost`` None) with fewer pairs than the fit's unknowns and three."""
+    if base.shape[0] < jac.shape[2] + 3:  # fewer pairs than the fit's unknowns at most
+        none = [None] * 3
+        return {"scale": none, "sigma": none, "dilution": [0.0] * 3, "fitted": none, "cost": None, "axes": 0}
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
     a = np.concatenate([-d[:, :, moved], jac], axis=2)  # (pairs, 3, unknowns)
@@ -1093,6 +1107,31 @@ def _scale_fit(c: Consistency, d: np.ndarray, base: np.ndarray, jac: np.ndarray)
                 scale[j], err[j] = round((1.0 + float(x[i])) / kept, 6), float(sigma[i]) / kept
                 fitted[j] = round(1.0 + float(x[i]), 6)
     return {"scale": scale, "sigma": err, "dilution": diluted, "fitted": fitted, "cost": cost, "axes": int(moved.sum())}
+
+
+def _covered_pairs(c: Consistency, shift: float) -> np.ndarray:
+    """Per detection pair (at the detection shift ``shift``): whether no gap of the velocity's own samples
+    (``AlignedStream.velocity_gaps``: intervals over ``alignment.GAP_FACTOR`` median intervals, messages lost) lies
+    within its span, so the velocity it integrates is the samples', not their interpolation across the gap."""
+    gaps = c.source.velocity_gaps
+    covered = np.ones(c.a.shape[0], np.bool_)
+    if gaps.shape[0] == 0:
+        return covered
+    g0, g1 = c.source.seconds(gaps[:, 0]), c.source.seconds(gaps[:, 1])
+    ta, tb = c.det_t[c.a] + shift, c.det_t[c.b] + shift
+    # a pair spans a gap where the gap starts before the pair's end and ends after its start (gaps sorted, disjoint)
+    first = np.searchsorted(g1, ta, side="right")  # the first gap ending after the pair's start
+    inside = first < g0.shape[0]
+    covered[inside] = g0[first[inside]] >= tb[inside]
+    return covered
+
+
+class _PairsOf:
+    """The detection pairs ``keep`` of a :class:`Consistency`: what :func:`velocity_scale` reads of them (the
+    stream, the detections' times and each pair's two ends)."""
+
+    def __init__(self, c: Consistency, keep: np.ndarray) -> None:
+        self.source, self.det_t, self.a, self.b = c.source, c.det_t, c.a[keep], c.b[keep]
 
 
 def velocity_misread(scale: dict) -> list[str]:
