@@ -1428,7 +1428,7 @@ def test_an_odometry_twist_beside_the_body_that_no_tf_gives_is_named_as_a_lever_
     assert offset["lever_arm"]["r_m"][1] == pytest.approx(0.5, abs=0.03), offset["lever_arm"]
     for said in (time_offset.note("riekf", offset), time_offset.note(None, offset)):  # a run, `info --noise`
         assert len(said) == 1 and "as the velocity of a point (" in said[0] and "a lever arm no TF gives" in said[0]
-        assert "extrinsic off by the opposite translation" in said[0], said
+        assert "stated position off by that same translation (stated minus true)" in said[0], said
     assert not time_offset.misread(offset)  # the estimate is whole, on another point: landmark jumps still split
 
 

@@ -915,8 +915,9 @@ def lever_arm(
     """The lever arm ``r`` (m, body frame) between the point whose velocity the odometry gives and the body's
     origin, fitted to the pairs with the odometry's bias: that point moves by ``v + ω × r``, so its integral
     between two detections is off the body's by ``(R_b − R_a) r`` and each pair's residual by ``−(R_aᵀ R_b − I) r``
-    (exact: the rotations do not depend on the velocity; ``arm``: :func:`_arm_jacobian`). A camera extrinsic's
-    translation off by ``−r`` moves the residuals alike: the pairs cannot tell the two apart. ``gain``: the trimmed
+    (exact: the rotations do not depend on the velocity; ``arm``: :func:`_arm_jacobian`). A camera's stated position
+    off by ``+r`` (stated minus true) moves the residuals alike (a camera stated 0.05 m off along x fits
+    r = (0.050, 0.005, 0.004) m, seed=4380): the pairs cannot tell the two apart. ``gain``: the trimmed
     mean squared residual with the bias alone over that with the arm too; ``over_scale``: the velocity scale's
     (``scale``, :func:`velocity_scale`, fitted on the same pairs) over the arm's; ``frames``: the detection frames
     the pairs join (what :func:`lever_arm_sentence`'s comparisons count). An odometry frame beside the body that no TF
@@ -1005,7 +1006,8 @@ def lever_arm_sentence(offset: dict) -> str | None:
         f"body's origin (± {float(np.max(sigma)):.2g} m; {offset['pairs']} detection pairs, the odometry's bias "
         f"fitted with it{instead}): a lever arm no TF gives (the odometry's child_frame_id a frame beside the body, "
         "its twist taken as the body's: give its transform to the body, or frames.body: that frame), or the "
-        "detections' frame's extrinsic off by the opposite translation, which the detections cannot tell from it; "
+        "detections' frame's stated position off by that same translation (stated minus true), which the detections "
+        "cannot tell from it; "
         "a forward arm with sideways residuals can also be a yaw rate off the motion (commanded, or lagging it), "
         "whose heading error a far landmark turns sideways (docs/observers.md)"
     )
