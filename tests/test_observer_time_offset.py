@@ -307,19 +307,12 @@ def test_a_lever_arm_that_explains_the_lag_and_scale_is_named_in_their_place():
     # arm exactly but at 1.30x, under LEVER_ARM_GAIN, and named a 0.124 s lag and a 0.546x y scale instead, both false.
     # Here the same rig (seed=4416, 60 s, the benchmark's noise: gyro x30, velocity x10): the arm is named, with the
     # lag and scale it explains, and neither is named on its own; a clean twist (no arm) names nothing
-    from slamobs.pipeline.noise import DEFAULTS
-    from slamobs.pipeline.simulate import NoiseModel
+    from noisy_logs import rig_noise
+
     from slamobs.pipeline.simulate.scenarios import handheld
 
     sc = handheld()
-    nm = replace(
-        NoiseModel(),
-        gyro=30 * DEFAULTS["gyro"][0] * np.sqrt(200.0),
-        odom_linear=10 * DEFAULTS["velocity"][0] * np.sqrt(10.0),
-        detection_base=0.03,
-        detection_per_m=0.006,
-    )
-    sim = simulate(sc, noise=nm, seed=4416, duration=60.0, imu_rate=200.0, odom_rate=10.0)
+    sim = simulate(sc, noise=rig_noise(200.0, 10.0), seed=4416, duration=60.0, imu_rate=200.0, odom_rate=10.0)
     clean = time_offset.estimate(align(expected_streams(sim)))
     assert time_offset.note(None, clean) == [] and time_offset.arm_explains(clean) == {}
     o = sim.odom
