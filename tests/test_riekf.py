@@ -795,25 +795,3 @@ def test_a_saturating_gyros_samples_are_widened_and_an_observer_integrating_them
     assert own["status"] == "gyro_clipped" and own["field"] == "input.gyro_clipped", own
     for written in (riekf, batch, fa):  # the new status is one report.json's schema allows
         validate_report(written)
-
-
-def test_a_landmark_started_from_another_landmark_s_detection_is_started_again():
-    """A detection carrying the id of a landmark not seen yet (1 % wrong ids on the lead's ground robot, seed=9991)
-    started that landmark at another's place: every true detection of it failed the gate, and when it was in view
-    alone the window failed with a factor no detection can have and riekf said it lost the log on a run 0.19 m off.
-    A landmark that fails before any of its detections passed is started again at its next detection."""
-    sc = get_scenario("ground")
-    sim = simulate(sc, duration=60.0, seed=4541)
-    stream = align(expected_streams(sim), keep_directions=False)
-    off, idx = stream.det_offsets, stream.det_idx
-    k = int(np.flatnonzero(idx == 9)[0])  # its first detection, in a frame with another landmark's
-    f = int(np.searchsorted(off, k, side="right")) - 1
-    other = next(j for j in range(off[f], off[f + 1]) if j != k)
-    stream.det_y[k] = stream.det_y[other]  # the other landmark's detection, labelled 9
-    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
-    filt = RiEKF(stream, {}, ObserverOptions(), noise=resolve_noise(NoiseConfig()), r0=start.R[0], p0=start.P[0])
-    filt.advance(filt.n_vel)
-    meta = filt.stats["metadata"]["filter"]
-    err = filt.lm[9, :3] - sc.landmarks[np.searchsorted(sc.landmark_ids, stream.landmark_ids[9])]
-    assert np.linalg.norm(err) < 0.3, (err, meta["gated_detections"])
-    assert meta["landmarks_reinitialised"] == 1 and meta["status"] != "lost"

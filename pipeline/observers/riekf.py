@@ -59,11 +59,7 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   With one detection per frame the window cannot tell a pose error from the detections' noise
   (:func:`_common_share` unknown): a factor the detections cannot have goes to the motion alone, not a give-up
   (docs/benchmarks.md, "riekf's floor without heading, session 30 (h-floorweight)"). On a log where no window
-  fails, none of this changes a number. A landmark that fails the gate before any of its detections passed is
-  re-initialised at its next detection at once: it holds only the detection it was started from, and when that one
-  carried another landmark's id (the landmark not yet seen), every true detection of it fails; in view alone it
-  filled windows that failed with a factor no detection can have, and the filter gave up at the first one
-  (docs/benchmarks.md, "riekf gave up on a landmark started from a wrong id, session 38 (h-falselost)").
+  fails, none of this changes a number.
 * Overconfidence (a consistency check that changes no number): a consistent filter's innovations are white, so
   the sum of a window's accepted innovations has the sum of their joint covariances (a frame's cross blocks
   included) and its Mahalanobis distance² follows χ² (3 DoF) whatever the window's size. A slowly varying error
@@ -1324,8 +1320,6 @@ def update(
             gated_lm[i] = True
             failed += 1
             ns[_OPEN_GATED] += 1
-            if corr_n[i] == 0:  # it never passed: the one detection it was started from may be the outlier
-                reinit[i] = True  # (module docstring, "Recovery")
             continue
         passed += 1
         ns[_TAIL_GATED] = 0
@@ -3201,7 +3195,7 @@ def recovery_notes(filt: dict) -> list[str]:
     if filt["landmarks_reinitialised"]:
         notes.append(
             f"riekf: {filt['landmarks_reinitialised']} landmark(s) re-initialised from the pose after failing "
-            "the gate through two recoveries in a row, or at their first detection after the one they were started from"
+            "the gate through two recoveries in a row"
         )
     if filt["status"] == "lost":
         notes.append(
