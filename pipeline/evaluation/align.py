@@ -463,13 +463,12 @@ def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | 
         np.concatenate([world_turns(r[b.start : b.stop + 1]) for b in row_blocks(len(ref))]) for r in (ref_rot, est_rot)
     )
     turns = w_est @ nearest_rotation(w_ref.T @ w_est).T
-    info_t = fit_weight(turns, turns - w_ref) * turn_normal(turns)
+    weight_t = fit_weight(turns, turns - w_ref)
+    info_t = weight_t * turn_normal(turns)
     se_t, se_p = _standard_errors_deg(info_t, axes), out["positions_se_deg"]
     out["turns_se_deg"] = se_t
     out["weak_axes"] = [k for k in range(3) if se_t[k] is not None and (se_p[k] is None or se_p[k] > se_t[k])]
-    m = weight_p * al.scale * (centred.T @ (est - est.mean(axis=0))) + fit_weight(turns, turns - w_ref) * (
-        w_ref.T @ w_est
-    )
+    m = weight_p * al.scale * (centred.T @ (est - est.mean(axis=0))) + weight_t * (w_ref.T @ w_est)
     weighed = nearest_rotation(m)
     trans = ref.mean(axis=0) - al.scale * weighed @ est.mean(axis=0)
     out["weighed"] = {
