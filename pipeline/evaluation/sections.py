@@ -50,6 +50,8 @@ from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, Ali
 from slamobs.pipeline.evaluation.trajectory_evaluation import (
     GAUGE_SIGMA,
     axes_with_error,
+    nees_values,
+    paired_uncertainty,
     PLANAR_TILT_DEG,
     ReportOptions,
     TrajectoryEvaluation,
@@ -1579,8 +1581,6 @@ def body_turn_nees(ev: TrajectoryEvaluation, result: dict[str, Any]) -> dict[str
     attitude NEES 16.6 / 58.9 against the truth, 1.75 / 2.12 with its 2.8 deg turn out; a ground robot's floor
     (seed=9991, 22.2 / 10.1) has a turn of 0.45 deg that changes nothing (docs/benchmarks.md, "batch's stated σ on
     generated logs the truth finds converged, session 39")."""
-    from slamobs.pipeline.evaluation.trajectory_evaluation import nees_values, paired_uncertainty
-
     x, _ = truth_body_rotation(ev)
     q = rots_to_quats(x[None])[0]
     q = q if q[3] >= 0 else -q
