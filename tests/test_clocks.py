@@ -126,7 +126,7 @@ def test_latency_below_tolerance_is_not_an_offset(tmp_path):
 def test_records_held_back_in_bursts_are_not_a_clock_offset(tmp_path):
     """A topic recorded in bursts (every frame of a second written at its end: a driver or relay that batches) has its
     median header-minus-record 0.5 s off the IMU's, but its stamps are right: record time would move each frame by up
-    to 1 s. seed=4620-4636's seed=4633 (round 11): ``use record time for it``, and time.source: auto taking it, put
+    to 1 s. round 11's seed=4633: ``use record time for it``, and time.source: auto taking it, put
     riekf at 1.53 m and batch at 1.32 m (header stamps: 0.081 and 0.033)."""
     pose = [(WALL + int(g), WALL + -(-int(g) // NS) * NS + 2_000_000, float(k)) for k, g in enumerate(_grid(5, 50))]
     path = _write(tmp_path / "bursts.mcap", {"/imu": _steady(100, 5, 0), "/pose": pose})
