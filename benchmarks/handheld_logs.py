@@ -15,6 +15,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round9 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set extrinsic10 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set round11 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
@@ -39,7 +40,11 @@ slow walk, covariances stated wrong per stream, a twist in km/h, biased or thinn
 IMU stamps out of order or drifting, a vibrating gyro (docs/benchmarks.md, "Logs nobody has run yet, round 10").
 ``--set extrinsic10``: session 38's (``EXTRINSIC10``): the camera's stated position 2-10 cm off on a hand-held rig,
 a flight and a ground robot, its stated rotation 2 or 5 deg off in pitch, and clean controls (docs/benchmarks.md, "A
-camera extrinsic stated 5 cm off").
+camera extrinsic stated 5 cm off"). ``--set round11``: session 39's (``ROUND11``): landmarks seen only in the first
+10 s, a robot reversing often, a gyro bias stepping mid-log, a truth cut at both ends or with 1 % wild poses, ids 0
+and 2**31-1, detections 10 % long or 5 % short, unnormalised quaternions, 2 Hz odometry, detection records bunched,
+an IMU rate halving, a landmark creeping, the odometry's angular velocity's sign flipped (docs/benchmarks.md, "Logs
+nobody has run yet, round 11").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
@@ -168,6 +173,21 @@ class Case:
     imu_back: float = 0.0  # share of the IMU's stamps moved 50 ms back (out of order in its own stream)
     imu_drift: float = 0.0  # the IMU's clock runs this much fast (its stamps' time since start times 1+x)
     gyro_vibe: tuple[float, float] = (0.0, 0.0)  # (Hz, rad/s): a sinusoidal vibration on every gyro axis
+    # round 11: landmarks seen only early, a rig that reverses, a gyro bias that steps, a truth cut at both ends or
+    # with wild poses, extreme ids, the detections' scale or quaternions wrong, records bunched, an IMU rate that
+    # halves, a landmark creeping, the odometry's angular velocity of the wrong sign
+    early_only: tuple[int, float] | None = None  # (n, until s): the n landmarks most seen before then, unseen after
+    reverse: float = 0.0  # the path's progress s(t) = t - (a / w) sin(w t), w = 2 pi / 20 s: backwards where a cos > 1
+    gyro_step: tuple[float, tuple[float, float, float]] | None = None  # (at s, rad/s): a gyro bias added from then
+    truth_until: float = 0.0  # the motion capture's samples from this many seconds on dropped (it ends early)
+    truth_wild: float = 0.0  # share of the motion capture's poses moved 1-3 m in a random direction (marker swaps)
+    extreme_ids: bool = False  # the lowest landmark id written 0, the highest 2**31 - 1, the next 2**31 - 2
+    det_scale: float = 1.0  # the detections' positions times this (a tag size stated wrong)
+    quat_scale: tuple[float, float] = (1.0, 1.0)  # each detection's quaternion times uniform(lo, hi) (unnormalised)
+    det_bunch_s: float = 0.0  # the detections' record times moved up to the next multiple of this (bunched)
+    imu_halve_at: float = 0.0  # from this many seconds on every other IMU sample dropped (its rate halves)
+    creep: tuple[int, float, tuple[float, float, float]] | None = None  # (id, from s, m/s): a landmark creeping
+    odom_angular_sign: float = 1.0  # the odometry's angular velocity times this (-1: a driver's sign error)
 
 
 CASES = (
@@ -558,6 +578,34 @@ EXTRINSIC10 = (
     Case(4530, "ground", 180, "ground, clean", **R6),
     Case(4531, "handheld", 90, "camera extrinsic right, detections sigma (0.1, 0.02)", law=(0.1, 0.02), **R6),
 )
+#: round 11 (session 39, docs/benchmarks.md "Logs nobody has run yet, round 11"): landmarks seen only in the first
+#: 10 s, a ground robot reversing often, a gyro bias stepping mid-log, a truth that starts late and ends early or has
+#: 1 % wild poses, ids 0 and 2**31 - 1, detections 10 % long or 5 % short, unnormalised quaternions, 2 Hz odometry,
+#: detection records bunched per second, an IMU rate halving mid-log, a landmark creeping 1 cm/s, the odometry's
+#: angular velocity of the wrong sign
+ROUND11 = (
+    Case(4620, "handheld", 90, "3 landmarks seen only in the first 10 s", early_only=(3, 10.0), **R6),
+    Case(4621, "ground", 180, "ground, reverses often (progress rate -0.6..2.6)", reverse=1.6, **R6),
+    Case(
+        4622, "handheld", 90, "gyro bias steps (0.03, -0.02, 0.05) at 45 s", gyro_step=(45.0, (0.03, -0.02, 0.05)), **R6
+    ),
+    Case(
+        4623, "flight", 90, "flight, gyro bias steps 0.05 (z) at 45 s", "bag", gyro_step=(45.0, (0.0, 0.0, 0.05)), **R6
+    ),
+    Case(4624, "handheld", 120, "truth only 30-90 s of 120 s", truth_from=30.0, truth_until=90.0, **R6),
+    Case(4625, "handheld", 90, "1 % of truth poses 1-3 m off (marker swaps)", truth_wild=0.01, **R6),
+    Case(4626, "flight", 90, "flight, 1 % of truth poses 1-3 m off", "ros2", truth_wild=0.01, **R6),
+    Case(4627, "handheld", 90, "ids 0, 2**31-2 and 2**31-1", "ros2", extreme_ids=True, **R6),
+    Case(4628, "handheld", 90, "detections 10 % long (tag size stated wrong)", det_scale=1.1, **R6),
+    Case(4629, "ground", 180, "ground, detections 5 % short", "bag", det_scale=0.95, **R6),
+    Case(4630, "handheld", 90, "detection quaternions x0.5-2 (unnormalised)", quat_scale=(0.5, 2.0), **R6),
+    Case(4631, "handheld", 90, "odometry at 2 Hz", imu_hz=200, odom_hz=2),
+    Case(4632, "ground", 180, "ground, odometry at 2 Hz", "bag", imu_hz=200, odom_hz=2),
+    Case(4633, "handheld", 90, "detection records bunched per 1 s", det_bunch_s=1.0, **R6),
+    Case(4634, "handheld", 90, "IMU 200 Hz halves to 100 Hz at 45 s", imu_halve_at=45.0, **R6),
+    Case(4635, "handheld", 90, "tag 10 creeps 1 cm/s from 20 s", creep=(10, 20.0, (0.01, 0.0, 0.0)), **R6),
+    Case(4636, "ground", 180, "ground, odometry angular velocity sign flipped", "ros2", odom_angular_sign=-1.0, **R6),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -571,6 +619,7 @@ SETS = {
     "restriekf": RESTRIEKF,
     "round10": ROUND10,
     "extrinsic10": EXTRINSIC10,
+    "round11": ROUND11,
 }
 
 
@@ -638,6 +687,23 @@ def slowed(base, k: float):
     return trajectory
 
 
+def reversing(base, a: float, period: float = 20.0):
+    """``base`` with its progress along the path ``s(t) = t - (a / w) sin(w t)``, ``w = 2 pi / period``: the rig
+    goes back along its path where ``a cos(w t) > 1`` (a robot that reverses often), its rates and speeds times
+    ``s'``, its acceleration ``s'^2 a(s) + s'' R(s) v(s)``."""
+    w = 2 * np.pi / period
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        sd, sdd = 1.0 - a * np.cos(w * t), a * w * np.sin(w * t)
+        tr = base(t - a / w * np.sin(w * t))
+        vw = np.einsum("nij,nj->ni", tr.R, tr.v)
+        accel = sd[:, None] ** 2 * tr.accel + sdd[:, None] * vw
+        return replace(tr, t=t, omega=sd[:, None] * tr.omega, v=sd[:, None] * tr.v, accel=accel)
+
+    return trajectory
+
+
 def scaled(sc, k: float):
     """``sc`` k times larger in space (path, speeds, landmarks, camera offset and range), its time unchanged."""
     base = sc.trajectory
@@ -675,6 +741,8 @@ def scenario(case: Case):
         sc = replace(sc, trajectory=slowed(sc.trajectory, case.slow))
     if case.cam_range:
         sc = replace(sc, camera=replace(sc.camera, max_range=case.cam_range))
+    if case.reverse:
+        sc = replace(sc, trajectory=reversing(sc.trajectory, case.reverse))
     return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None, imu_rpy_deg=case.imu_rpy_deg)
 
 
@@ -926,6 +994,62 @@ def misdrawn10(sim, case: Case):
     return sim
 
 
+def misdrawn11(sim, case: Case, sc):
+    """Round 11's changes to the drawn log (from a generator of their own): landmarks seen only early, a gyro bias
+    stepping, the motion capture cut at its end or with wild poses, extreme ids, the detections' scale or
+    quaternions wrong, their records bunched, the IMU's rate halving, a landmark creeping, the odometry's angular
+    velocity's sign."""
+    rng = np.random.default_rng(case.seed + 23)
+    det, imu, odom, moc = sim.detections, sim.imu, sim.odom, sim.mocap
+    frame = np.repeat(np.arange(len(det.t_ns)), np.diff(det.offsets))
+    t_det = (det.t_ns[frame] - sim.start_ns) * 1e-9
+    if case.creep:
+        lid, t0, vel = case.creep
+        sel = (det.ids == lid) & (t_det >= t0)
+        r_wc = sc.sample(t_det[sel]).R @ sc.camera.R_bc
+        shift = (t_det[sel] - t0)[:, None] * np.asarray(vel, float)
+        det = replace(det, xyz=det.xyz.copy())
+        det.xyz[sel] += np.einsum("nji,nj->ni", r_wc, shift)
+    if case.det_scale != 1.0:
+        det = replace(det, xyz=case.det_scale * det.xyz)
+    if case.quat_scale != (1.0, 1.0):
+        k = rng.uniform(*case.quat_scale, len(det.ids))
+        det = replace(det, quat_xyzw=det.quat_xyzw * k[:, None])
+    if case.early_only:
+        n, until = case.early_only
+        ids, counts = np.unique(det.ids[t_det < until], return_counts=True)
+        chosen = ids[np.argsort(-counts, kind="stable")[:n]]
+        det = _frames(det, ~(np.isin(det.ids, chosen) & (t_det >= until)))
+    if case.extreme_ids:
+        ids = sorted(int(i) for i in sim.truth["landmarks"])
+        new = {ids[0]: 0, ids[-1]: 2**31 - 1, ids[-2]: 2**31 - 2}
+        det = replace(det, ids=np.array([new.get(int(i), int(i)) for i in det.ids], dtype=np.int64))
+        truth = json.loads(json.dumps(sim.truth))
+        truth["landmarks"] = {str(new.get(int(k), int(k))): p for k, p in truth["landmarks"].items()}
+        sim = replace(sim, truth=truth)
+    if case.det_bunch_s:
+        step = int(round(case.det_bunch_s * 1e9))
+        det = replace(det, rec_ns=sim.start_ns + -(-(det.rec_ns - sim.start_ns) // step) * step)
+    if case.gyro_step:
+        at, bias = case.gyro_step
+        after = (imu.t_ns - sim.start_ns) * 1e-9 >= at
+        imu = replace(imu, gyro=imu.gyro + after[:, None] * np.asarray(bias, float))
+    if case.imu_halve_at:
+        t = (imu.t_ns - sim.start_ns) * 1e-9
+        imu = _rows(imu, (t < case.imu_halve_at) | (np.arange(len(t)) % 2 == 0))
+    if case.odom_angular_sign != 1.0:
+        odom = replace(odom, angular=case.odom_angular_sign * odom.angular)
+    if case.truth_until:
+        moc = _rows(moc, (moc.t_ns - sim.start_ns) * 1e-9 < case.truth_until)
+    if case.truth_wild:
+        sel = rng.random(len(moc.t_ns)) < case.truth_wild
+        u = rng.standard_normal((sel.sum(), 3))
+        pos = moc.position.copy()
+        pos[sel] += u / np.linalg.norm(u, axis=1)[:, None] * rng.uniform(1.0, 3.0, (sel.sum(), 1))
+        moc = replace(moc, position=pos)
+    return replace(sim, detections=det, imu=imu, odom=odom, mocap=moc)
+
+
 def perturb(sim, case: Case):
     """What the simulator does not draw: the gyro bias's random walk, silent streams, jittered stamps (from their
     own generator, so the simulator's draws are those of the plain case)."""
@@ -971,7 +1095,7 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
         sc, noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, sampling=case.sampling, **kw
     )
     sim = misdrawn9(misdrawn8(misdrawn7(misdrawn(perturb(sim, case), case, sc), case), case), case, sc)
-    sim = misdrawn10(sim, case)
+    sim = misdrawn11(misdrawn10(sim, case), case, sc)
     gx, vx = case.stated_split or (case.stated, case.stated)
     stated = replace(nm, gyro=gx * nm.gyro, odom_linear=vx * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)

@@ -123,6 +123,22 @@ def test_latency_below_tolerance_is_not_an_offset(tmp_path):
     assert not any("header clock" in w for w in summary.warnings)
 
 
+def test_records_held_back_in_bursts_are_not_a_clock_offset(tmp_path):
+    """A topic recorded in bursts (every frame of a second written at its end: a driver or relay that batches) has its
+    median header-minus-record 0.5 s off the IMU's, but its stamps are right: record time would move each frame by up
+    to 1 s. round 11's seed=4633: ``use record time for it``, and time.source: auto taking it, put
+    riekf at 1.53 m and batch at 1.32 m (header stamps: 0.081 and 0.033)."""
+    pose = [(WALL + int(g), WALL + -(-int(g) // NS) * NS + 2_000_000, float(k)) for k, g in enumerate(_grid(5, 50))]
+    path = _write(tmp_path / "bursts.mcap", {"/imu": _steady(100, 5, 0), "/pose": pose})
+    summary = inspect_log(path)
+    assert _topic(summary, "/pose").offset_s < -0.4  # the median is off: the old rule's "clock"
+    assert summary.clocks == {"/imu": "header", "/pose": "header"}
+    assert not any("header clock" in w for w in summary.warnings), summary.warnings
+    streams = read_log(path, clocks="auto")
+    assert not any("header clock" in w for w in streams.warnings) and not streams.clocks
+    np.testing.assert_array_equal(streams.truth.t_ns, [p[0] for p in pose])
+
+
 def test_sim_time_stamps_next_to_wall_clock_record_times(tmp_path):
     sim_start = 12 * NS  # a simulator clock started 12 s ago
     topics = {"/imu": _steady(100, 3, sim_start - WALL), "/pose": _steady(50, 3, sim_start - WALL)}

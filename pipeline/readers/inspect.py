@@ -68,6 +68,10 @@ _EPOCH_2000_NS = 946_684_800 * _NS  # stamps before this are simulation clocks, 
 #: Header clocks further apart than this (median header-minus-record, between topics) are different clocks;
 #: below it the difference is transport/processing latency.
 CLOCK_TOLERANCE_S = 0.1
+#: The percentile of header-minus-record that stands for a topic's least delay (its fastest messages): a transport
+#: that holds messages back (records in bursts, a queue) delays them by varying amounts and moves the median, never
+#: this edge; the 99th, not the largest, so that a few stamps set ahead (1 in 100) cannot set it.
+LEAST_DELAY_PERCENTILE = 99
 #: The fewest stamps of a topic whose header clock is compared with another's: the median of three is the first a
 #: single stamp recorded late (an image written after a pause, a latched message) cannot set. Fewer: the topic
 #: keeps its own clock, unjudged, and a reference with fewer judges none (fiducials_ubiquity's aruco_images.bag:
@@ -97,6 +101,7 @@ class TopicSummary:
     header_clock: str | None = None  # "wall", "sim" (before 2000) or "zero"
     offset_s: float | None = None  # median header stamp minus record time
     offset_spread_s: float | None = None  # 5th-95th percentile width of header minus record
+    offset_edge_s: float | None = None  # header minus record at LEAST_DELAY_PERCENTILE (the fastest messages')
     relative_offset_s: float | None = None  # offset_s minus the reference topic's
     clock: str | None = None  # the time source time.source: auto picks: "header" or "record"
     run_clock: str | None = None  # the one a run with the config given reads (:func:`run_clocks`)
@@ -172,6 +177,9 @@ class StampStats:
     rate_segments: tuple[tuple[float, float], ...]
     rate_hz: float | None = None  # distinct stamps per second of the time recorded (the gaps left out)
     pace: float | None = None  # how fast the header stamps advance against record time (decode.stamp_pace)
+    edge_ns: int | None = (
+        None  # header minus record at LEAST_DELAY_PERCENTILE: the least delay's (its fastest messages)
+    )
 
 
 def clock_kind(t_ns: np.ndarray) -> str:
@@ -226,6 +234,7 @@ def stamp_stats(t_ns: np.ndarray, rec_ns: np.ndarray) -> StampStats:
         _rate_segments(times, period),
         _recorded_rate(steps, long),
         stamp_pace(t_ns, rec_ns) if kind != "zero" else None,
+        int(np.percentile(diff, LEAST_DELAY_PERCENTILE, method="nearest")) if diff.size else None,
     )
 
 
@@ -239,25 +248,33 @@ def _recorded_rate(steps: np.ndarray, gaps: np.ndarray) -> float | None:
 
 
 def choose_clocks(
-    offsets: Mapping[str, tuple[str, int, int]], reference: str | None, stamps: Mapping[str, int] | None = None
+    offsets: Mapping[str, tuple[str, int, int, int | None]],
+    reference: str | None,
+    stamps: Mapping[str, int] | None = None,
 ) -> tuple[dict[str, str], list[str]]:
     """Time source per topic from its (header clock kind, median header-minus-record ns, that difference's 5th-95th
-    percentile spread ns), with warnings.
+    percentile spread ns, its value at :data:`LEAST_DELAY_PERCENTILE` ns or None), with warnings.
 
     See the module docstring; ``reference`` is the topic whose clock the others must agree with. ``stamps``: each
     topic's number of stamps; one with fewer than :data:`MIN_CLOCK_STAMPS` is not compared (a reference with fewer:
-    none is).
+    none is). A topic whose median is off the reference's but whose fastest messages are not (the edges within
+    :data:`CLOCK_TOLERANCE_S`) is on the same clock, its records held back by varying amounts (in bursts, by a
+    queue): its header stamps stay (record time would move each message by its delay).
     """
-    clocks = {t: "record" if kind == "zero" else "header" for t, (kind, _, _) in offsets.items()}
+    clocks = {t: "record" if kind == "zero" else "header" for t, (kind, *_) in offsets.items()}
     few = {t for t, n in (stamps or {}).items() if n < MIN_CLOCK_STAMPS}
     if reference not in offsets or offsets[reference][0] == "zero" or reference in few:
         return clocks, []
-    ref_kind, ref_offset, _ = offsets[reference]
+    ref_kind, ref_offset, _, ref_edge = offsets[reference]
     tol = CLOCK_TOLERANCE_S * _NS
+    # a topic held back: its fastest messages at the reference's, which is steady (its median at its own edge; a
+    # reference whose median is not is stepped or jittery, and the medians are all there is to go by)
+    steady = ref_edge is not None and abs(ref_offset - ref_edge) <= tol
+    held = lambda edge: steady and edge is not None and abs(edge - ref_edge) <= tol  # noqa: E731
     odd = [
         t
-        for t, (kind, offset, _) in offsets.items()
-        if kind != "zero" and t not in few and (kind != ref_kind or abs(offset - ref_offset) > tol)
+        for t, (kind, offset, _, edge) in offsets.items()
+        if kind != "zero" and t not in few and (kind != ref_kind or (abs(offset - ref_offset) > tol and not held(edge)))
     ]
     if not odd:
         return clocks, []
@@ -295,7 +312,7 @@ def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:
         stream = getattr(streams, role)
         if stream is not None and len(stream) and stream.topic not in found:
             stats = stamp_stats(stream.t_ns, stream.rec_ns)
-            found[stream.topic] = (stats.header_clock, stats.offset_ns, stats.spread_ns)
+            found[stream.topic] = (stats.header_clock, stats.offset_ns, stats.spread_ns, stats.edge_ns)
             stamps[stream.topic] = len(stream)
     reference = streams.angular_velocity.topic if streams.angular_velocity is not None else None
     return choose_clocks(found, reference, stamps)
@@ -489,6 +506,7 @@ def _summary(
         header_clock=stats.header_clock,
         offset_s=stats.offset_ns / _NS,
         offset_spread_s=stats.spread_ns / _NS,
+        offset_edge_s=stats.edge_ns / _NS if stats.edge_ns is not None else None,
         gaps=stats.gaps,
         max_gap_s=stats.max_gap_ns / _NS if stats.max_gap_ns is not None else None,
         max_gap_at_s=stats.max_gap_at_ns / _NS if stats.max_gap_at_ns is not None else None,
@@ -697,7 +715,12 @@ def inspect_log(
         for topic, (meta, _) in sorted(table.items())
     }
     offsets = {
-        t: (s.header_clock, round(s.offset_s * _NS), round((s.offset_spread_s or 0.0) * _NS))
+        t: (
+            s.header_clock,
+            round(s.offset_s * _NS),
+            round((s.offset_spread_s or 0.0) * _NS),
+            round(s.offset_edge_s * _NS) if s.offset_edge_s is not None else None,
+        )
         for t, s in summaries.items()
         if s.header_clock is not None and s.offset_s is not None
     }
