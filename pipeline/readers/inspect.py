@@ -177,9 +177,8 @@ class StampStats:
     rate_segments: tuple[tuple[float, float], ...]
     rate_hz: float | None = None  # distinct stamps per second of the time recorded (the gaps left out)
     pace: float | None = None  # how fast the header stamps advance against record time (decode.stamp_pace)
-    edge_ns: int | None = (
-        None  # header minus record at LEAST_DELAY_PERCENTILE: the least delay's (its fastest messages)
-    )
+    #: header minus record at LEAST_DELAY_PERCENTILE: the least delay's (its fastest messages)
+    edge_ns: int | None = None
 
 
 def clock_kind(t_ns: np.ndarray) -> str:
