@@ -42,13 +42,6 @@ NOTE_LEVEL = 0.99
 PASSES = 2
 
 
-def _skew(q: np.ndarray) -> np.ndarray:
-    out = np.zeros(q.shape[:-1] + (3, 3))
-    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -q[..., 2], q[..., 1], -q[..., 0]
-    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = q[..., 2], -q[..., 1], q[..., 0]
-    return out
-
-
 def step(problem, sol, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """The Gauss–Newton step ``Δδ`` of the sensor's position and its marginal covariance (3 × 3) at ``sol``, the
     detections of ``problem`` already shifted by ``offset`` from the stated position (the prior's residual); None
@@ -66,7 +59,8 @@ def step(problem, sol, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray] | No
     h = w.sum(axis=0) + np.eye(3) / PRIOR_SIGMA_M**2
     k = ne.ad.shape[0]
     pose = np.zeros((k, 6, 3))  # J_poseᵀ W J_δ = [[q]× W; W]
-    np.add.at(pose, ne.kf, np.concatenate([_skew(q) @ w, w], axis=1))
+    qw = np.cross(q[:, None, :], np.swapaxes(w, 1, 2)).swapaxes(1, 2)  # [q]× W, a column at a time
+    np.add.at(pose, ne.kf, np.concatenate([qw, w], axis=1))
     border = np.zeros((ne.gb.shape[0], 3))
     lm = np.zeros((ne.n_lm, 3, 3))  # J_ℓᵀ W J_δ = −R W
     np.add.at(lm, ne.idx, -(rot @ w))
