@@ -21,6 +21,7 @@ from slamobs.pipeline.noise import DETECTION_LAW_KEYS, DETECTION_RATIOS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
+from slamobs.pipeline.smoother import extrinsic as ex
 from slamobs.pipeline.smoother import inverse_depth as idp
 from slamobs.pipeline.smoother.evidence import ACROSS as EVIDENCE_ACROSS
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
@@ -69,7 +70,7 @@ FLOOR_Z = 3.0
 #: (the same solution), docs/benchmarks.md "The floor in batch's graph, session 31 (h-batchfloor)".
 FLOOR_RAMP = (0.0, 0.01, 0.1)
 #: What :meth:`BatchSmoother._solve` changes on the estimator, put back before it runs again without the floor.
-_SOLVE_STATE = ("noise", "det_at", "det_range", "det_shape", "det_factor", "law_notes", "start_jumps")
+_SOLVE_STATE = ("stream", "noise", "det_at", "det_range", "det_shape", "det_factor", "law_notes", "start_jumps")
 
 
 def check_config(config) -> int:
@@ -344,7 +345,7 @@ class BatchSmoother(Stepper):
         keyframes = (kf_t, kf_of_det, gaps)
         chosen, levels, level_notes = self._noise_levels(chosen, keyframes, segments, progress)
         chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
-        problem, sol = chosen.problem, chosen.sol
+        problem, sol, extrinsic = self._extrinsic(chosen.problem, chosen.sol, progress)
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
@@ -374,6 +375,7 @@ class BatchSmoother(Stepper):
         summary["seed_check"] = seed_check
         summary["covariance_gauge"] = gauge_record(kf_t, gauge)
         summary["floor"] = self._floor_record(problem, sol)
+        summary["extrinsic"] = extrinsic
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -386,7 +388,7 @@ class BatchSmoother(Stepper):
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + level_notes
         self.stats["notes"] += seed_notes + self._floor_note() + gauge_note(summary["covariance_gauge"])
-        self.stats["notes"] += list(chosen.notes or [])
+        self.stats["notes"] += list(chosen.notes or []) + ex.note(extrinsic)
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
@@ -402,6 +404,37 @@ class BatchSmoother(Stepper):
             }
         )
         return summary
+
+    def _extrinsic(self, problem, sol, progress) -> tuple:
+        """The detections' sensor position fitted jointly with the solution (:mod:`pipeline.smoother.extrinsic`):
+        applied along its observable directions (the problem solved again with the detections moved, and the stream's
+        detections and sensor moved with them, which the tables' innovations read), the problem, solution and record.
+        Skipped where the detections come from no one fixed sensor (several cameras, a moving frame)."""
+        from slamobs.pipeline.smoother import graph as g
+
+        sensor = getattr(self.stream, "det_sensor", None)
+        if sensor is None:
+            return problem, sol, {"skipped": "the detections are in no one fixed sensor frame (several or moving)"}
+
+        def again(shifted, start):
+            if progress is not None:
+                progress("batch: solved again with the detections' sensor at its fitted position")
+            out = self._solved_from(shifted, start)
+            merged = g.merge_summaries(start.summary, out.summary)
+            merged.pop("error_before_gating", None)
+            if "error_before_gating" in start.summary:
+                merged["error_before_gating"] = start.summary["error_before_gating"]
+            out.summary = merged
+            return out
+
+        problem, sol, rec, applied = ex.timed(problem, sol, np.asarray(sensor[1], float), again)
+        if np.any(applied):
+            self.stream = replace(
+                self.stream, det_y=self.stream.det_y + applied, det_sensor=(sensor[0], np.asarray(sensor[1]) + applied)
+            )
+            if self.det_at is not None:
+                self.det_at = self.det_at + applied
+        return problem, sol, rec
 
     def _noise_levels(self, chosen, keyframes: tuple, segments: _Segments, progress) -> tuple:
         """The noise model refined on the solution ``chosen``, a pass at a time, each solving again: detection

@@ -217,6 +217,26 @@ class Normal:
         retract(rot, pos, lms, bias, x, xb, self.n_lm, *new)
         return new, s
 
+    def solve_normal(self, ra: np.ndarray, rb: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``x`` (poses K × 6, border n_b) with ``H x = [ra; rb]`` for the undamped normal matrix ``H`` of the last
+        linearization (None: not positive definite); a landmark left with no detection gets 0
+        (:func:`border_rows`). Public: :mod:`pipeline.smoother.extrinsic` solves its coupling columns with it."""
+        from slamobs.pipeline.smoother.solver import back_substitute, factor
+
+        s, rb, z = self.c.copy(), np.array(rb, float), np.array(ra, float)
+        if not factor(self.ad, self.ao, 0.0, z, self._geo(), self.dd, self.ee, s, rb):
+            return None
+        s = np.triu(s) + np.triu(s, 1).T
+        keep = border_rows(s, self.n_lm)
+        xb = np.zeros_like(rb)
+        try:
+            xb[keep] = np.linalg.solve(s[np.ix_(keep, keep)], rb[keep])
+        except np.linalg.LinAlgError:
+            return None
+        x = np.empty_like(z)
+        back_substitute(z, xb, self._geo(), self.dd, self.ee, x)
+        return x, xb
+
     def bias_covariance(self, s: np.ndarray) -> np.ndarray:
         """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement; a landmark
         left with no detection (the χ² gate dropped them all) has no rows there and is left out."""
