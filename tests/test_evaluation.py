@@ -716,6 +716,34 @@ def test_the_evo_line_says_evos_number_where_the_upright_fit_is_not_evos():
     assert [x for x in render_markdown(rep).splitlines() if x.startswith("Reproduce with evo")][0].endswith("`.")
 
 
+def test_evos_fit_is_an_alignment_the_report_path_reads():
+    """``Alignment.umeyama`` was a 4x4 matrix ``evo.departs`` rebuilt into a rotation, scale and shift by hand (a
+    second path beside ``sections.aligned_errors``): it is now an :class:`Alignment` of the same kind, and the
+    departure is that path's rmse on the same pairs."""
+    from slamobs.pipeline.evaluation.align import Alignment, fit_alignment
+    from slamobs.pipeline.evaluation.metrics import statistics
+    from slamobs.pipeline.evaluation.sections import aligned_errors
+    from slamobs.pipeline.evaluation.trajectory_error import Paired
+    from slamobs.pipeline.lie import quats_to_rots, umeyama
+
+    truth = planar_truth()
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["y"] = -poses["y"]
+    est = np.column_stack([np.asarray(poses[c], float) for c in ("x", "y", "z")])
+    n = len(est)
+    ref, ref_q = truth.position[:n], truth.quat_xyzw[:n]
+    est_q = np.column_stack([np.asarray(poses[c], float) for c in ("qx", "qy", "qz", "qw")])
+    al = fit_alignment("se3", ref, est, quats_to_rots(ref_q), quats_to_rots(est_q))
+    assert al.upright is not None and isinstance(al.umeyama, Alignment), al
+    rot, trans, _ = umeyama(est, ref)
+    assert np.allclose(al.umeyama.rot, rot) and np.allclose(al.umeyama.trans, trans) and al.umeyama.kind == "se3"
+    t = truth.t_ns[:n]
+    paired = Paired(t, t, ref, ref_q, est, est_q, None, None, "nearest", "reference", n, n)
+    rmse = statistics(aligned_errors({"evo": al.umeyama}, paired)["evo"][0])["rmse"]
+    rep = checked(build_report(poses, None, None, truth))
+    assert f"evo_ape gives translation rmse about {rmse:.4g} m" in rep["evo"]["departs"]
+
+
 @pytest.mark.parametrize("kind", ["se3", "sim3"])
 def test_the_upright_fit_reads_the_spread_and_the_decomposition_the_alignment_made(monkeypatch, kind):
     """``fit_alignment`` judges the truth's spread (``spread_axes``) and decomposes the cross-covariance (Umeyama's

@@ -66,9 +66,10 @@ class Alignment:
     #: why the fit is not evo's Umeyama rotation although its kind is (:func:`upright_fit`: a flat truth's fit
     #: that evo turns upside down), None where it is evo's
     upright: str | None = None
-    #: evo's own Umeyama fit (the 4x4 ``s R | t``) where ``upright`` departs from it, None elsewhere: what
-    #: ``evo_ape`` fits on the same pairs (report.json ``evo.departs``)
-    umeyama: np.ndarray | None = None
+    #: evo's own Umeyama fit on the same pairs, an :class:`Alignment` of the same kind, where ``upright`` departs
+    #: from it, None elsewhere: what ``evo_ape`` fits (report.json ``evo.departs`` reads its APE through the
+    #: report's own path, ``sections.aligned_errors``)
+    umeyama: Alignment | None = None
 
     def positions(self, p: np.ndarray) -> np.ndarray:
         return apply_alignment(self.rot, self.trans, self.scale, p)
@@ -360,7 +361,7 @@ def fit_alignment(
     if checked and kind != "yaw" and spread is not None:
         up = upright_fit(ref[:m], est[:m], rot, kind == "sim3", ref_rot, est_rot, spread[2], cc)
     if up is not None:
-        evo_fit = _sim3(rot, trans, scale)
+        evo_fit = Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale))
         rot, trans, scale, upright = up
         return Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale), upright=upright, umeyama=evo_fit)
     evo = _sim3(rot, trans, scale)
