@@ -926,6 +926,41 @@ def test_an_odometry_frame_beside_the_base_says_where_tf_places_the_base():
     ], said(on_rig)
 
 
+def test_a_truth_carried_from_the_base_is_not_offered_frames_body():
+    """h-bodyframe's notes on TagSLAM test 22 with ``frames.truth: rig`` (benchmarks/real_logs.py's config): the run
+    carries the rig's truth to the body, yet its notes said a truth of the base "looks turned" and offered
+    ``frames.body: rig``, advice for what was already done. With the truth carried, the body note says so and the
+    base note is not given, in the run and in the report (``sections.body_frame_notes``); without it both stand."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.evaluation.sections import body_frame_notes
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    streams = expected_streams(simulate("figure8", seed=5, duration=10.0), "x.mcap")
+    turned = np.array([0.5, -0.5, 0.5, 0.5])  # 120 deg about (1, -1, 1), test 22's VIO frame on the rig
+    vio = Transform("rig", "camera_pose_frame", np.array([0.0, 0.032, 0.0]), turned)
+    on_rig = replace(
+        streams,
+        linear_velocity=replace(streams.linear_velocity, frame_id="camera_pose_frame"),
+        twist_angular=replace(streams.twist_angular, frame_id="camera_pose_frame"),
+        static_tf=[*(replace(t, parent="rig") if t.parent == "base_link" else t for t in streams.static_tf), vio],
+    )
+    plain, carried = align(on_rig), align(on_rig, truth_frame="rig")
+    assert [n for n in plain.notes if n.startswith("TF places the body frame")], plain.notes
+    assert carried.truth_body is not None and carried.truth_body["frame"] == "rig"
+    assert not [n for n in carried.notes if n.startswith("TF places the body frame")], carried.notes
+    body = [n for n in carried.notes if n.startswith("the run took 'camera_pose_frame'")]
+    assert len(body) == 1 and "looks turned" not in body[0] and "the truth, of 'rig', is carried" in body[0], body
+    assert any(n.startswith("the truth is of the frame 'rig'") for n in carried.notes), carried.notes
+    report = {"ape": {"truth_frame_turn": {"angle_deg": 12.0}}}
+    run_input = {"body_frame": "camera_pose_frame", "body_frame_from": carried.body_from}
+    run_input |= {"base_frame": carried.base_frame, "truth_body": carried.truth_body}
+    said = body_frame_notes(report, run_input)
+    assert said == [body[0]], said
+    said = body_frame_notes(report, {**run_input, "truth_body": None})
+    assert len(said) == 2 and "frames.body: rig makes the base the body" in said[1], said
+
+
 def _warned_sim():
     """A generated figure 8 whose IMU is stamped 0.3 s late with its gyro's x and y swapped, and a tenth of its
     detections given id 9999: two warn-only checks speak (its accelerometer, the misread id), and the gyro's lag, no

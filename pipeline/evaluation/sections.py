@@ -505,7 +505,8 @@ def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[
 
     if not turn or turn.get("camera_named") or not origin or origin == BODY_FROM_CONFIG:
         return []
-    return [body_frame_note(body, origin), *base_placed_note(body, run_input.get("base_frame"))]
+    carried = run_input.get("truth_body")
+    return [body_frame_note(body, origin, carried), *base_placed_note(body, run_input.get("base_frame"), carried)]
 
 
 def detections_named_camera(metadata: dict[str, Any]) -> bool:
