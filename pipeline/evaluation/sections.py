@@ -137,7 +137,7 @@ def rotation_fix_section(ev: TrajectoryEvaluation) -> dict[str, Any] | None:
     p, al = ev.paired, ev.alignment
     if al.n_points != len(p):
         return None  # fitted on the first pairs only: its spread is another question
-    fix = rotation_fix(p.ref_pos, p.est_pos, al, p.ref_rot, p.est_rot)
+    fix = rotation_fix(p.ref_pos, p.est_pos, al, p.ref_rot, p.est_rot, planar=ev.planar)
     if fix is None:
         return None
     fix["ape_se_m"] = rmse_standard_error(ev.translation.errors)
