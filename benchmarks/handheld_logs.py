@@ -18,6 +18,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round11 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set review11 [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
@@ -48,7 +49,9 @@ nobody has run yet, round 11").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
-log still 40 % in two stops (docs/benchmarks.md, "riekf's bias readings at rest, without batch's").
+log still 40 % in two stops (docs/benchmarks.md, "riekf's bias readings at rest, without batch's"). ``--set
+review11``: session 39's (``REVIEW11``): a twist of a point ahead with the odometry thinned at random, a camera's
+stated extrinsic tilted 2-5 deg, and controls (docs/benchmarks.md, "The review's leftovers of session 38").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -605,6 +608,48 @@ ROUND11 = (
     Case(4634, "handheld", 90, "IMU 200 Hz halves to 100 Hz at 45 s", imu_halve_at=45.0, **R6),
     Case(4635, "handheld", 90, "tag 10 creeps 1 cm/s from 20 s", creep=(10, 20.0, (0.01, 0.0, 0.0)), **R6),
     Case(4636, "ground", 180, "ground, odometry angular velocity sign flipped", "ros2", odom_angular_sign=-1.0, **R6),
+#: session 39's review leftovers (docs/benchmarks.md "The review's leftovers of session 38"): a twist of a point
+#: 0.2 m ahead with the odometry thinned at random (its gaps), controls of each alone, and a camera's stated extrinsic
+#: tilted 2-5 deg
+REVIEW11 = (
+    Case(
+        4700,
+        "handheld",
+        90,
+        "twist of a point 0.2 m ahead, 70 % of odometry lost",
+        twist_lever=(0.2, 0, 0),
+        odom_keep=0.3,
+        **R6,
+    ),
+    Case(
+        4701,
+        "handheld",
+        90,
+        "twist of a point 0.2 m ahead, 50 % of odometry lost",
+        twist_lever=(0.2, 0, 0),
+        odom_keep=0.5,
+        **R6,
+    ),
+    Case(
+        4702,
+        "ground",
+        180,
+        "ground, twist of a point 0.3 m ahead, 70 % of odometry lost",
+        twist_lever=(0.3, 0, 0),
+        odom_keep=0.3,
+        **R6,
+    ),
+    Case(4703, "handheld", 90, "twist of a point 0.2 m ahead", twist_lever=(0.2, 0.0, 0.0), **R6),
+    Case(4704, "handheld", 90, "70 % of odometry lost", odom_keep=0.3, **R6),
+    Case(4705, "handheld", 90, "camera extrinsic stated 2 deg off in pitch", tf_tilt_deg=(0.0, 2.0), **R6),
+    Case(4706, "handheld", 90, "camera extrinsic stated 3 deg off in pitch", tf_tilt_deg=(0.0, 3.0), **R6),
+    Case(4707, "handheld", 90, "camera extrinsic stated 5 deg off in pitch", tf_tilt_deg=(0.0, 5.0), **R6),
+    Case(4708, "handheld", 90, "camera extrinsic stated 3 deg off in roll", tf_tilt_deg=(3.0, 0.0), **R6),
+    Case(4709, "flight", 90, "flight, camera extrinsic stated 3 deg off in pitch", tf_tilt_deg=(0.0, 3.0), **R6),
+    Case(4710, "ground", 180, "ground, camera extrinsic stated 3 deg off in pitch", tf_tilt_deg=(0.0, 3.0), **R6),
+    Case(4711, "handheld", 90, "clean", **R6),
+    Case(4712, "flight", 90, "flight, clean", **R6),
+    Case(4713, "ground", 180, "ground, clean", **R6),
 )
 SETS = {
     "still": STILL,
@@ -620,6 +665,7 @@ SETS = {
     "round10": ROUND10,
     "extrinsic10": EXTRINSIC10,
     "round11": ROUND11,
+    "review11": REVIEW11,
 }
 
 

@@ -1149,15 +1149,23 @@ def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None
 BASE_FRAMES = ("base_link", "base_footprint", "rig")
 
 
-def body_frame_note(body: str, origin: str) -> str:
+def body_frame_note(body: str, origin: str, truth_body: dict | None = None) -> str:
     """The note naming the frame a run took as the body, where it came from (:func:`body_frame_origin`) and the key
     that sets another. Public: the run gives it when an odometry's child frame other than a base frame became the
     body, the report (:func:`.evaluation.sections.body_frame_notes`) when the truth looks turned, in one wording
-    (the summary prints it once)."""
+    (the summary prints it once). Where the truth is carried to the body from its own frame (``truth_body``:
+    :func:`truth_frame_in_body`) the note says so in place of the turned truth a base's would be: TagSLAM test 22
+    with ``frames.truth: rig`` was told its rig truth "looks turned" though the report compared it carried."""
+    if truth_body:
+        truth = f"the truth, of '{truth_body['frame']}', is carried to it before the report compares (its note)"
+    else:
+        truth = (
+            "if the robot's base is another frame (the odometry's child frame a sensor's), a truth of the base looks "
+            "turned against them"
+        )
     return (
-        f"the run took '{body}' as the body frame ({origin}): the poses, the map and the biases are that frame's; if "
-        "the robot's base is another frame (the odometry's child frame a sensor's), a truth of the base looks turned "
-        "against them; `slamobs info LOG` lists the frames into the body, and frames.body: FRAME in the run's config "
+        f"the run took '{body}' as the body frame ({origin}): the poses, the map and the biases are that frame's; "
+        f"{truth}; `slamobs info LOG` lists the frames into the body, and frames.body: FRAME in the run's config "
         "makes FRAME the body"
     )
 
@@ -1177,14 +1185,17 @@ def _base_frame(tf: TfBuffer, body: str) -> dict | None:
     return None
 
 
-def base_placed_note(body: str, base: dict | None) -> list[str]:
+def base_placed_note(body: str, base: dict | None, truth_body: dict | None = None) -> list[str]:
     """Where TF places a base frame against ``body``, an odometry's child frame taken as the body (``base``:
     :func:`_base_frame`, run.json ``input.base_frame``): a truth of the base is off the poses by that lever arm,
     turning with the robot (a figure 8 whose odometry's twist is in a frame 0.5 m beside base_link, TF giving it:
     riekf APE 0.49 m against the base's truth, 0.011 m with frames.body: base_link, with only the body-frame note,
     which speaks of a turned truth; session 27). Public: the run notes it, and the report again where the truth looks
-    turned (:func:`.evaluation.sections.body_frame_notes`), in one wording (the summary prints it once)."""
-    if not base:
+    turned (:func:`.evaluation.sections.body_frame_notes`), in one wording (the summary prints it once). None where
+    the truth is carried to the body from its own frame (``truth_body``, :func:`truth_frame_in_body`): no truth is
+    then compared as the body's, and ``frames.body: BASE`` would advise what is already done (TagSLAM test 22 with
+    ``frames.truth: rig``, as benchmarks/real_logs.py runs it, was offered ``frames.body: rig``)."""
+    if not base or truth_body:
         return []
     name = base["frame"]
     return [
@@ -1342,7 +1353,8 @@ def align(
     base = None
     if body_from not in (BODY_FROM_CONFIG, BODY_FROM_DEFAULT) and body not in BASE_FRAMES:
         base = _base_frame(tf, body)
-        notes[:0] = [body_frame_note(body, body_from), *base_placed_note(body, base)]  # an odometry's child frame
+        # an odometry's child frame
+        notes[:0] = [body_frame_note(body, body_from, truth_body), *base_placed_note(body, base, truth_body)]
     notes += truth_body_note(body, truth_body)
     if w is not None:
         notes.append(_accel_weights_note(w))

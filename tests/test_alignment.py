@@ -880,6 +880,20 @@ def test_an_odometry_stuck_while_the_gyro_turns_is_named():
     assert "(8.0-14.0 s into the log) while /imu/data's gyro turns at a median" in got[0], got
 
 
+def _vio_on_rig(streams):
+    """``streams`` with TagSLAM test 22's layout: the odometry's twist in 'camera_pose_frame', which TF places 120 deg
+    about (1, -1, 1) and 0.032 m off the base frame 'rig' (base_link renamed)."""
+    from dataclasses import replace
+
+    vio = Transform("rig", "camera_pose_frame", np.array([0.0, 0.032, 0.0]), np.array([0.5, -0.5, 0.5, 0.5]))
+    return replace(
+        streams,
+        linear_velocity=replace(streams.linear_velocity, frame_id="camera_pose_frame"),
+        twist_angular=replace(streams.twist_angular, frame_id="camera_pose_frame"),
+        static_tf=[*(replace(t, parent="rig") if t.parent == "base_link" else t for t in streams.static_tf), vio],
+    )
+
+
 def test_an_odometry_frame_beside_the_base_says_where_tf_places_the_base():
     """An odometry whose twist is in a frame 0.5 m beside base_link, TF giving it: the run takes that frame as the
     body, right by itself, but a truth of base_link is 0.5 m off it (a figure 8: riekf APE 0.49 m, 0.011 m with
@@ -911,19 +925,38 @@ def test_an_odometry_frame_beside_the_base_says_where_tf_places_the_base():
     # TagSLAM's rig: its VIO odometry's child frame (test 22's camera_pose_frame) is turned 120 deg against the rig
     # its reference trajectory tracks, the transform from tagslam.yaml's T_body_odom (a cameras: file); it went
     # unnamed, and the report offered frames.truth_rotation (evaluation only) where frames.body: rig mends the run
-    turned = np.array([0.5, -0.5, 0.5, 0.5])  # 120 deg about (1, -1, 1)
-    vio = Transform("rig", "camera_pose_frame", np.array([0.0, 0.032, 0.0]), turned)
-    on_rig = replace(
-        moved,
-        linear_velocity=replace(streams.linear_velocity, frame_id="camera_pose_frame"),
-        twist_angular=replace(streams.twist_angular, frame_id="camera_pose_frame"),
-        static_tf=[*(replace(t, parent="rig") if t.parent == "base_link" else t for t in streams.static_tf), vio],
-    )
+    on_rig = _vio_on_rig(streams)  # 120 deg about (1, -1, 1)
     assert said(on_rig) == [
         "TF places the body frame 'camera_pose_frame' against 'rig' (static, from /tf_static or the cameras: files: "
         "turned 120.0 deg, offset 0.032 m): a truth of 'rig' is that far off these poses, the offset turning with the "
         "robot, and is turned by that angle; frames.body: rig makes the base the body"
     ], said(on_rig)
+
+
+def test_a_truth_carried_from_the_base_is_not_offered_frames_body():
+    """h-bodyframe's notes on TagSLAM test 22 with ``frames.truth: rig`` (benchmarks/real_logs.py's config): the run
+    carries the rig's truth to the body, yet its notes said a truth of the base "looks turned" and offered
+    ``frames.body: rig``, advice for what was already done. With the truth carried, the body note says so and the
+    base note is not given, in the run and in the report (``sections.body_frame_notes``); without it both stand."""
+
+    from slamobs.pipeline.evaluation.sections import body_frame_notes
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    on_rig = _vio_on_rig(expected_streams(simulate("figure8", seed=5, duration=10.0), "x.mcap"))
+    plain, carried = align(on_rig), align(on_rig, truth_frame="rig")
+    assert [n for n in plain.notes if n.startswith("TF places the body frame")], plain.notes
+    assert carried.truth_body is not None and carried.truth_body["frame"] == "rig"
+    assert not [n for n in carried.notes if n.startswith("TF places the body frame")], carried.notes
+    body = [n for n in carried.notes if n.startswith("the run took 'camera_pose_frame'")]
+    assert len(body) == 1 and "looks turned" not in body[0] and "the truth, of 'rig', is carried" in body[0], body
+    assert any(n.startswith("the truth is of the frame 'rig'") for n in carried.notes), carried.notes
+    report = {"ape": {"truth_frame_turn": {"angle_deg": 12.0}}}
+    run_input = {"body_frame": "camera_pose_frame", "body_frame_from": carried.body_from}
+    run_input |= {"base_frame": carried.base_frame, "truth_body": carried.truth_body}
+    said = body_frame_notes(report, run_input)
+    assert said == [body[0]], said
+    said = body_frame_notes(report, {**run_input, "truth_body": None})
+    assert len(said) == 2 and "frames.body: rig makes the base the body" in said[1], said
 
 
 def _warned_sim():

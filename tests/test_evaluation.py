@@ -716,6 +716,55 @@ def test_the_evo_line_says_evos_number_where_the_upright_fit_is_not_evos():
     assert [x for x in render_markdown(rep).splitlines() if x.startswith("Reproduce with evo")][0].endswith("`.")
 
 
+def test_a_planar_runs_weak_axes_are_only_about_its_vertical():
+    """h-lineal's ``ape.rotation_fix.weak_axes`` was set on 28 of MR.CLAM's 30 runs: a level estimate's world turns
+    are all about its vertical, so their fit fixes a tilt as exactly as the estimate is level, better than any flat
+    path's positions, and both horizontal axes read "weak". On a planar run only the axis nearest the vertical can
+    be weak (the estimate's one freedom); a run whose estimate tilts keeps every axis."""
+    truth = planar_truth()
+    rng = np.random.default_rng(4718)
+    poses = moved(truth, so3_exp(np.array([0.0, 0.0, -1.1])), np.array([1.0, 2.0, 0.0]), noise_m=0.2, seed=4718)
+    poses["z"] = 0.0  # a planar estimate: z held, roll and pitch held, its heading off smoothly
+    rots = quats_to_rots(poses[["qx", "qy", "qz", "qw"]].to_numpy())
+    off = np.radians(2.0) * np.sin(0.003 * np.arange(len(rots))) + np.radians(0.01) * rng.standard_normal(len(rots))
+    yaw = [so3_exp(np.array([0.0, 0.0, e])) for e in off]
+    q = rots_to_quats(np.einsum("nij,njk->nik", rots, np.array(yaw)))
+    poses[["qx", "qy", "qz", "qw"]] = q
+    fix = checked(build_report(poses, None, None, truth, align="se3"))["ape"]["rotation_fix"]
+    vertical = int(np.argmax(np.abs(np.array(fix["axes"])[:, 2])))
+    assert fix["turns_se_deg"] is not None and set(fix["weak_axes"]) <= {vertical}, fix
+    horizontal = [k for k in range(3) if k != vertical]
+    assert all(fix["positions_se_deg"][k] > fix["turns_se_deg"][k] for k in horizontal), fix  # "weak" before
+
+
+def test_evos_fit_is_an_alignment_the_report_path_reads():
+    """``Alignment.umeyama`` was a 4x4 matrix ``evo.departs`` rebuilt into a rotation, scale and shift by hand (a
+    second path beside ``sections.aligned_errors``): it is now an :class:`Alignment` of the same kind, and the
+    departure is that path's rmse on the same pairs."""
+    from slamobs.pipeline.evaluation.align import Alignment, fit_alignment
+    from slamobs.pipeline.evaluation.metrics import statistics
+    from slamobs.pipeline.evaluation.sections import aligned_errors
+    from slamobs.pipeline.evaluation.trajectory_error import Paired
+    from slamobs.pipeline.lie import quats_to_rots, umeyama
+
+    truth = planar_truth()
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["y"] = -poses["y"]
+    est = np.column_stack([np.asarray(poses[c], float) for c in ("x", "y", "z")])
+    n = len(est)
+    ref, ref_q = truth.position[:n], truth.quat_xyzw[:n]
+    est_q = np.column_stack([np.asarray(poses[c], float) for c in ("qx", "qy", "qz", "qw")])
+    al = fit_alignment("se3", ref, est, quats_to_rots(ref_q), quats_to_rots(est_q))
+    assert al.upright is not None and isinstance(al.umeyama, Alignment), al
+    rot, trans, _ = umeyama(est, ref)
+    assert np.allclose(al.umeyama.rot, rot) and np.allclose(al.umeyama.trans, trans) and al.umeyama.kind == "se3"
+    t = truth.t_ns[:n]
+    paired = Paired(t, t, ref, ref_q, est, est_q, None, None, "nearest", "reference", n, n)
+    rmse = statistics(aligned_errors({"evo": al.umeyama}, paired)["evo"][0])["rmse"]
+    rep = checked(build_report(poses, None, None, truth))
+    assert f"evo_ape gives translation rmse about {rmse:.4g} m" in rep["evo"]["departs"]
+
+
 @pytest.mark.parametrize("kind", ["se3", "sim3"])
 def test_the_upright_fit_reads_the_spread_and_the_decomposition_the_alignment_made(monkeypatch, kind):
     """``fit_alignment`` judges the truth's spread (``spread_axes``) and decomposes the cross-covariance (Umeyama's

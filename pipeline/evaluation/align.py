@@ -66,9 +66,10 @@ class Alignment:
     #: why the fit is not evo's Umeyama rotation although its kind is (:func:`upright_fit`: a flat truth's fit
     #: that evo turns upside down), None where it is evo's
     upright: str | None = None
-    #: evo's own Umeyama fit (the 4x4 ``s R | t``) where ``upright`` departs from it, None elsewhere: what
-    #: ``evo_ape`` fits on the same pairs (report.json ``evo.departs``)
-    umeyama: np.ndarray | None = None
+    #: evo's own Umeyama fit on the same pairs, an :class:`Alignment` of the same kind, where ``upright`` departs
+    #: from it, None elsewhere: what ``evo_ape`` fits (report.json ``evo.departs`` reads its APE through the
+    #: report's own path, ``sections.aligned_errors``)
+    umeyama: Alignment | None = None
 
     def positions(self, p: np.ndarray) -> np.ndarray:
         return apply_alignment(self.rot, self.trans, self.scale, p)
@@ -360,7 +361,7 @@ def fit_alignment(
     if checked and kind != "yaw" and spread is not None:
         up = upright_fit(ref[:m], est[:m], rot, kind == "sim3", ref_rot, est_rot, spread[2], cc)
     if up is not None:
-        evo_fit = _sim3(rot, trans, scale)
+        evo_fit = Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale))
         rot, trans, scale, upright = up
         return Alignment(kind, rot, trans, scale, m, _sim3(rot, trans, scale), upright=upright, umeyama=evo_fit)
     evo = _sim3(rot, trans, scale)
@@ -420,7 +421,7 @@ def _standard_errors_deg(info: np.ndarray, axes: np.ndarray) -> list[float | Non
     return out
 
 
-def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | None:
+def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None, planar: bool = False) -> dict | None:
     """How well the positions fix the rotation of the least-squares fit ``al`` (se3 or sim3 of ``ref ≈ s R est +
     t``, N pairs in time order), and the fit that weighs the attitudes too; None for another kind or < 9 pairs.
 
@@ -430,11 +431,16 @@ def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | 
     world turns (:func:`world_turns`, which a body frame convention does not change; taken a block of rows at a
     time, no (N, 3, 3) array held): ``ω_ref,i ≈ R ω_est,i``, the
     least-squares (Procrustes) fit of these vectors, whose turn about each axis has ``turns_se_deg``.
-    ``weak_axes``: the axes about which the positions fix the turn less well than the turns do. ``weighed``: the
-    least-squares fit of both at once, each term weighted by its :func:`fit_weight` (``R`` the rotation nearest
-    ``w_p s Σ (p_ref − μ_ref)(p_est − μ_est)ᵀ + w_t Σ ω_ref ω_estᵀ``, the translation putting the means together,
-    the scale kept), with ``turn_deg``, how far it turns the estimate from ``al``. Without rotations: the
-    positions' part alone."""
+    ``weak_axes``: the axes about which the positions fix the turn less well than the turns do, of those the estimate
+    has freedom in: on a ``planar`` run (estimate and truth level, ``TrajectoryEvaluation.planar``) only the principal
+    axis nearest the estimate's vertical as aligned (``al.rot``'s z column). A level estimate holds its roll and pitch
+    at zero, unestimated: its world turns are all about its vertical, and their fit fixes a tilt only by that level,
+    as exactly as it holds, while a flat path's positions fix it by their spread: every planar run read "weak" about
+    both horizontal axes (28 of MR.CLAM's 30), which the 4-DoF alignment a planar run gets already answers.
+    ``weighed``: the least-squares fit of both at once, each term weighted by its :func:`fit_weight` (``R`` the
+    rotation nearest ``w_p s Σ (p_ref − μ_ref)(p_est − μ_est)ᵀ + w_t Σ ω_ref ω_estᵀ``, the translation putting the
+    means together, the scale kept), with ``turn_deg``, how far it turns the estimate from ``al``. Without
+    rotations: the positions' part alone."""
     if al.kind not in ("se3", "sim3"):
         return None
     ref = np.asarray(ref, dtype=np.float64)
@@ -467,7 +473,8 @@ def rotation_fix(ref, est, al: Alignment, ref_rot=None, est_rot=None) -> dict | 
     info_t = weight_t * turn_normal(turns)
     se_t, se_p = _standard_errors_deg(info_t, axes), out["positions_se_deg"]
     out["turns_se_deg"] = se_t
-    out["weak_axes"] = [k for k in range(3) if se_t[k] is not None and (se_p[k] is None or se_p[k] > se_t[k])]
+    free = range(3) if not planar else [int(np.argmax(np.abs(axes @ np.asarray(al.rot)[:, 2])))]
+    out["weak_axes"] = [k for k in free if se_t[k] is not None and (se_p[k] is None or se_p[k] > se_t[k])]
     m = weight_p * al.scale * (centred.T @ (est - est.mean(axis=0))) + weight_t * (w_ref.T @ w_est)
     weighed = nearest_rotation(m)
     trans = ref.mean(axis=0) - al.scale * weighed @ est.mean(axis=0)

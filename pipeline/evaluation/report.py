@@ -33,9 +33,9 @@ from slamobs.pipeline.evaluation.figure_jobs import (
     top_view_job,
     uncertainty_plot_jobs,
 )
-from slamobs.pipeline.evaluation.align import SCALED_ALIGNMENTS, apply_alignment
+from slamobs.pipeline.evaluation.align import SCALED_ALIGNMENTS
 from slamobs.pipeline.evaluation.markdown import extent_words, render_markdown
-from slamobs.pipeline.evaluation.metrics import MATRICES_KEPT_ROWS, ape_translation, rotated
+from slamobs.pipeline.evaluation.metrics import MATRICES_KEPT_ROWS, rotated, statistics
 from slamobs.pipeline.evaluation.sections import (
     EVO_ALIGN_FLAGS,
     ApeByAlignmentSection,
@@ -48,6 +48,7 @@ from slamobs.pipeline.evaluation.sections import (
     SegmentErrorsSection,
     TimeOffsetSection,
     UncertaintySection,
+    aligned_errors,
     alignment_dict,
     nees_against_offset_truth,
     nees_against_turned_truth,
@@ -96,14 +97,13 @@ def _evo_commands(options: ReportOptions, ev: TrajectoryEvaluation) -> dict[str,
 def _evo_departs(ev: TrajectoryEvaluation) -> dict[str, str]:
     """``departs`` where the report's fit is not evo's (``Alignment.umeyama``: ``align.upright_fit`` kept the
     estimate's up side up on a flat truth that evo's Umeyama turns over): the translation rmse evo gives on the
-    same pairs beside this report's; nothing elsewhere."""
-    um = ev.alignment.umeyama
-    if um is None:
+    same pairs beside this report's, by the path the report's APE takes (``aligned_errors``, ``statistics``);
+    nothing elsewhere."""
+    evo = ev.alignment.umeyama
+    if evo is None:
         return {}
-    p = ev.paired
-    scale = float(np.linalg.norm(um[:3, 0]))
-    moved = apply_alignment(um[:3, :3] / scale, um[:3, 3], scale, p.est_pos)
-    evo_rmse = float(np.sqrt(np.mean(np.square(ape_translation(p.ref_pos, moved)))))
+    trans, _ = aligned_errors({"evo": evo}, ev.paired)["evo"]
+    evo_rmse = float(statistics(trans)["rmse"])
     return {
         "departs": f"evo's Umeyama fit turns the estimate over on this flat truth (the APE section's note; "
         f"align.upright_fit): evo_ape gives translation rmse about {evo_rmse:.4g} m, not this report's "

@@ -141,7 +141,7 @@ def rotation_fix_section(ev: TrajectoryEvaluation) -> dict[str, Any] | None:
     p, al = ev.paired, ev.alignment
     if al.n_points != len(p):
         return None  # fitted on the first pairs only: its spread is another question
-    fix = rotation_fix(p.ref_pos, p.est_pos, al, p.ref_rot, p.est_rot)
+    fix = rotation_fix(p.ref_pos, p.est_pos, al, p.ref_rot, p.est_rot, planar=ev.planar)
     if fix is None:
         return None
     fix["ape_se_m"] = rmse_standard_error(ev.translation.errors)
@@ -509,7 +509,8 @@ def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[
 
     if not turn or turn.get("camera_named") or not origin or origin == BODY_FROM_CONFIG:
         return []
-    return [body_frame_note(body, origin), *base_placed_note(body, run_input.get("base_frame"))]
+    carried = run_input.get("truth_body")
+    return [body_frame_note(body, origin, carried), *base_placed_note(body, run_input.get("base_frame"), carried)]
 
 
 def detections_named_camera(metadata: dict[str, Any]) -> bool:
