@@ -608,6 +608,7 @@ ROUND11 = (
     Case(4634, "handheld", 90, "IMU 200 Hz halves to 100 Hz at 45 s", imu_halve_at=45.0, **R6),
     Case(4635, "handheld", 90, "tag 10 creeps 1 cm/s from 20 s", creep=(10, 20.0, (0.01, 0.0, 0.0)), **R6),
     Case(4636, "ground", 180, "ground, odometry angular velocity sign flipped", "ros2", odom_angular_sign=-1.0, **R6),
+)
 #: session 39's review leftovers (docs/benchmarks.md "The review's leftovers of session 38"): a twist of a point
 #: 0.2 m ahead with the odometry thinned at random (its gaps), controls of each alone, and a camera's stated extrinsic
 #: tilted 2-5 deg
