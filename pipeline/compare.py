@@ -314,7 +314,14 @@ def plot_estimates(path: Path, aligned: dict[str, np.ndarray], spread: dict[str,
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"Top view, no truth: estimates SE(3)-aligned onto {anchor}'s (in brackets: disagreement)")
+    # two lines: in one, the words that define the legend's numbers ran past the right edge ("... (in brackets:
+    # disagreemen", test_21's compare); the second says what the number is, as comparison.md's disagreement_m does
+    against = f"{reference}'s estimate" if reference else "each of the others (their mean)"
+    ax.set_title(
+        f"Top view, no truth: estimates SE(3)-aligned onto {anchor}'s\n"
+        f"in brackets: disagreement, translation RMSE (m) against {against}",
+        fontsize=10,
+    )
     ax.grid(True, alpha=0.3)
     fig.legend(loc="outside lower center", ncols=3, fontsize=8)
     fig.savefig(path, dpi=110)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
@@ -292,3 +293,27 @@ def test_a_split_landmarks_warning_and_the_maps_size_stand_in_the_comparison(tmp
     md = (out / "comparison.md").read_text()
     assert all(f"- {n}\n" in md for n in warned) and all(n in table.attrs["notes"] for n in warned)
     assert f"| riekf | ok |  | {rows} |" in md, md
+
+
+def test_the_overlay_title_stays_inside_the_figure_and_says_what_the_bracketed_number_is(drawn_figures):
+    """`slamobs compare` on TagSLAM test_21 without truth (fast-adaptation, hashim, wang-tayebi; round 25): the
+    overlay's one-line title ran past the figure's right edge, cut at "(in brackets: disagreemen", so the legend's
+    numbers had no definition in the figure. The title is two lines inside the figure, and the second says the
+    number is a translation RMSE in m, against the others' mean or against the reference's estimate."""
+    from slamobs.pipeline.compare import plot_estimates
+
+    t = np.linspace(0.0, 6.0, 200)
+    aligned = {
+        name: np.column_stack([t, np.sin(t) + k * 0.01, 0 * t])
+        for k, name in enumerate(("fast-adaptation", "hashim", "wang-tayebi"))
+    }
+    spread = {"fast-adaptation": 0.0176, "hashim": 0.014, "wang-tayebi": 0.0144}
+    for reference, against in ((None, "each of the others (their mean)"), ("wang-tayebi", "wang-tayebi's estimate")):
+        plot_estimates(io.BytesIO(), aligned, spread, reference)
+        fig = drawn_figures[-1]
+        renderer = fig.canvas.get_renderer()
+        (ax,) = fig.axes
+        box = ax.title.get_window_extent(renderer)
+        assert 0.0 <= box.x0 and box.x1 <= fig.get_figwidth() * fig.dpi, ax.get_title()
+        assert box.y1 <= fig.get_figheight() * fig.dpi
+        assert ax.get_title().endswith(f"in brackets: disagreement, translation RMSE (m) against {against}")

@@ -70,6 +70,30 @@ def test_hand_eye_note_finds_the_truth_rotation_and_its_key_removes_it(sim, tmp_
     assert json.loads(again.stdout)["ape"]["rotation_deg"]["rmse"] < 2.0
 
 
+def test_the_report_summary_says_the_turn_is_in_its_rpe_and_drift_lines(sim, tmp_path):
+    """`slamobs report` of TagSLAM test_21's run against TagSLAM's rig trajectory (round 25): the summary printed
+    "RPE 1 m: translation rmse 0.7698 m" and "drift 57.585 % of distance" beside an APE of 0.0176 m, the truth's
+    body frame turned 180 deg, with no word (report.md says it over its relative errors; the terminal's note named
+    only the rotation APE). The sentence report.md has stands above the two lines."""
+    res = invoke("run", sim["log"], "-o", tmp_path / "turned", "--truth", sim["tum"], "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    res = invoke("report", tmp_path / "turned")
+    assert res.exit_code == 0, res.output
+    lines = res.stdout.splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith(("RPE ", "drift ")))
+    said = lines[first - 1]
+    assert said.startswith("note         the truth's body frame looks turned against the estimate's by "), said
+    assert said.endswith(
+        "so that turn is in them, translation and rotation: frames.body, or frames.truth_rotation "
+        "for the report, removes it."
+    ), said
+    res = invoke(
+        "report", tmp_path / "turned", "--truth", f"{sim['log']}:/mocap/pose"
+    )  # the log's own truth: not turned, no line
+    assert res.exit_code == 0, res.output
+    assert not [line for line in res.stdout.splitlines() if "so that turn is in them" in line]
+
+
 def test_report_takes_the_truth_rotation_from_a_config(sim, tmp_path):
     """h-user9: `report` had no --config, so frames.truth_rotation (which the run's note names) applied only to a
     new `run`; a re-report of the turned run with the key removes the turn, the command line's options win."""

@@ -787,3 +787,33 @@ def test_a_missing_tag_size_names_the_sizes_a_tagslam_file_states(tmp_path):
     with pytest.raises(InputError) as err:
         tag_landmarks(streams, TagOptions(), camera_files=[tmp_path / "tagslam.yaml"], identity_frames=("cam_a",))
     assert str(err.value).endswith("set tags.size (or tags.sizes per id) in the config")
+
+
+def test_a_tag_size_other_than_the_one_a_tagslam_file_states_is_said(tmp_path):
+    """TagSLAM test_21 run as its tagslam.yaml's default_tag_size says (``tags.size: 0.16``, the file in cameras:):
+    its tags 100-107, 0.1 m by the same file, were solved at 0.16 m (ranges 1.6x) without a word. The run now
+    names the tags, the two sizes, the factor and the tags.sizes line; with that line given, or for a tag the file
+    does not list, nothing is said, and the size used stays the config's."""
+    streams = _two_cameras()  # tag 5, 3 detections in each camera; cam_b has no extrinsic (dropped)
+    listed = TAGSLAM.replace(
+        "       - {id: 9, size: 0.2}\n", "       - {id: 9, size: 0.2}\n       - {id: 5, size: 0.1}\n"
+    )
+    (tmp_path / "tagslam.yaml").write_text(listed)
+    files = [tmp_path / "tagslam.yaml"]
+    tags = tag_landmarks(streams, TagOptions(size=0.3), camera_files=files, identity_frames=("cam_a",))
+    said = [n for n in tags.notes if "states 0.1 m" in n]
+    assert said == [
+        "warning: tagslam.yaml states 0.1 m for tag 5 (3 detections), the run gave them 0.3 m (tags.size): each of "
+        "their ranges is 3x what 0.1 m gives, and the map and poses that use them follow; if tagslam.yaml is this "
+        "log's, set tags.sizes: {5: 0.1}"
+    ]
+    assert np.linalg.norm(tags.detections.xyz[0]) == pytest.approx(2.0, rel=1e-3)  # solved at the config's 0.3 m
+    options = TagOptions(size=0.3, sizes={5: 0.1})
+    assert not [
+        n
+        for n in tag_landmarks(streams, options, camera_files=files, identity_frames=("cam_a",)).notes
+        if "states 0.1 m" in n
+    ]
+    (tmp_path / "tagslam.yaml").write_text(TAGSLAM)  # tag 5 not listed: nothing to hold it against
+    tags = tag_landmarks(streams, TagOptions(size=0.3), camera_files=files, identity_frames=("cam_a",))
+    assert not [n for n in tags.notes if " states " in n]

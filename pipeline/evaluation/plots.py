@@ -508,10 +508,15 @@ def plot_nees(path: Path, position, attitude, mean: dict, window_s: float, dof: 
 
 
 def plot_segment_errors(
-    path: Path, lengths_m: np.ndarray, translation_pct: list[np.ndarray], rotation_deg_per_m: list[np.ndarray]
+    path: Path,
+    lengths_m: np.ndarray,
+    translation_pct: list[np.ndarray],
+    rotation_deg_per_m: list[np.ndarray],
+    caveat: str = "",
 ) -> Path:
     """Box plots of the relative error per sub-trajectory length (rpg_trajectory_evaluation's figure): translation
-    in % of the length and rotation in deg/m, one box per length (whiskers 1.5 IQR, outliers not drawn)."""
+    in % of the length and rotation in deg/m, one box per length (whiskers 1.5 IQR, outliers not drawn);
+    ``caveat``: more title lines (:func:`.figure_jobs.turn_title_line`)."""
     fig, axes = _figure(2, 1, (7.5, 6.5))
     labels = [f"{x:g}" for x in lengths_m]
     panels = (
@@ -530,7 +535,7 @@ def plot_segment_errors(
         ax.set_ylabel(ylabel)
         ax.set_ylim(bottom=0.0)
         ax.grid(True, axis="y", alpha=0.3)
-    axes[0, 0].set_title("Relative error per sub-trajectory length (segments of the truth path)")
+    axes[0, 0].set_title("Relative error per sub-trajectory length (segments of the truth path)" + caveat)
     axes[1, 0].set_xlabel("sub-trajectory length [m]")
     return _save(fig, path)
 

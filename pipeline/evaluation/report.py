@@ -242,7 +242,7 @@ def evaluate_tables(
     if segments_done is not None:
         segments_done.result()
     if figures is not None:
-        figures(segment_plot_jobs(segments.arrays))
+        figures(segment_plot_jobs(segments.arrays, ape.result.get("truth_frame_turn")))
     return _report(sections, ev, truth, options, _report_notes(invalid, sections)), ev
 
 

@@ -150,6 +150,9 @@ class CameraFiles:
     #: the tag edges a TagSLAM tagslam.yaml states, in words (``default_tag_size`` per body, the listed tags' own
     #: ``size`` where another): said when the config gives no tags.size, never taken on their own
     stated_tag_sizes: list[str] = field(default_factory=list)
+    #: each listed tag's edge (m) as a tagslam.yaml states it (its own ``size``, else its body's
+    #: ``default_tag_size``) and the file's name: held against the config's sizes, never taken on their own
+    tag_sizes: dict[int, tuple[float, str]] = field(default_factory=dict)
 
 
 def distortion_model(name: str, coeffs: np.ndarray, where: str, path: str | Path, topic: str | None = None) -> str:
@@ -404,9 +407,10 @@ def _tagslam_bodies(doc: dict, path: Path, out: CameraFiles) -> None:
             found = True
     if not found:
         out.notes.append(f"{path.name}: no dynamic body with T_body_odom and odom_frame_id (nothing used)")
-    stated = _tagslam_sizes(bodies)
+    stated, per_id = _tagslam_sizes(bodies)
     if stated:
         out.stated_tag_sizes.append(f"{path.name} states {stated}")
+    out.tag_sizes.update({i: (size, path.name) for i, size in per_id.items()})
 
 
 #: at most this many tag ids are named per size where a tagslam.yaml states sizes (the rest counted)
@@ -421,11 +425,11 @@ def _number(value: Any) -> float | None:
     return size if np.isfinite(size) and size > 0 else None
 
 
-def _tagslam_sizes(bodies: list) -> str:
+def _tagslam_sizes(bodies: list) -> tuple[str, dict[int, float]]:
     """What a tagslam.yaml's ``bodies`` state about tag edges, in words: each body's ``default_tag_size`` and the
     listed tags whose own ``size`` is another ("default_tag_size 0.16 m (body 'house'); 0.1 m for tags 100, 101");
-    "" when they state none."""
-    parts, other = [], {}
+    "" when they state none; and each listed tag's edge by id (its own ``size``, else its body's default)."""
+    parts, other, per_id = [], {}, {}
     for entry in bodies:
         for name, body in (entry or {}).items():
             if not isinstance(body, dict):
@@ -435,14 +439,18 @@ def _tagslam_sizes(bodies: list) -> str:
                 parts.append(f"default_tag_size {default:g} m (body '{name}')")
             tags = body.get("tags")
             for tag in tags if isinstance(tags, list) else []:
-                size = _number(tag.get("size")) if isinstance(tag, dict) else None
-                if size is not None and size != default and isinstance(tag.get("id"), int):
+                if not isinstance(tag, dict) or not isinstance(tag.get("id"), int):
+                    continue
+                size = _number(tag.get("size"))
+                if size is not None and size != default:
                     other.setdefault(size, []).append(int(tag["id"]))
+                if size is not None or default is not None:
+                    per_id[int(tag["id"])] = size if size is not None else default
     for size, ids in sorted(other.items()):
         named = ", ".join(str(i) for i in sorted(ids)[:NAMED_IDS])
         more = f" and {len(ids) - NAMED_IDS} more" if len(ids) > NAMED_IDS else ""
         parts.append(f"{size:g} m for tag{'s' if len(ids) > 1 else ''} {named}{more}")
-    return "; ".join(parts)
+    return "; ".join(parts), per_id
 
 
 def read_camera_files(paths: list[str | Path]) -> CameraFiles:

@@ -31,7 +31,7 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import CornerStream, DetectionStream, LogStreams, Transform
-from slamobs.pipeline.vision.cameras import CameraFiles, CameraModel, read_camera_files
+from slamobs.pipeline.vision.cameras import NAMED_IDS, CameraFiles, CameraModel, read_camera_files
 from slamobs.pipeline.vision.distortion import distortion_fit, distortion_warning
 from slamobs.pipeline.vision.tagpose import REASONS, TagQuality, solve_tags, winding
 
@@ -216,6 +216,9 @@ def tag_landmarks(
             checks[s.topic] = fit.record()
             warnings += [distortion_warning(s.topic, s.frame_id, model, fit)] if fit.wrong else []
     notes += _pose_notes(reject, ignored, unsized, options)
+    notes += _size_against_stated(
+        np.concatenate([s.ids for s in kept]) if kept else np.empty(0, np.int64), options, files
+    )
     table = _table(rows)
     stream, merge_notes = _merge(rows, options.sync_s)
     notes += merge_notes + warnings
@@ -423,6 +426,33 @@ def _camera_poses(
     ok = poses.ok
     fit = distortion_fit(ideal[keep][ok], model.k, sizes[keep][ok], frame_of[ok], s.ids[keep][ok])
     return (c, s, frame_of, s.ids[keep], poses, _area(s.corners[keep])), ignored, unsized, fit
+
+
+def _size_against_stated(ids: np.ndarray, options: TagOptions, files: CameraFiles) -> list[str]:
+    """The warning where the edge a run gives detected tags (``tags.sizes``, else ``tags.size``) is not the one a
+    tagslam.yaml in ``cameras:`` states for them (:attr:`.CameraFiles.tag_sizes`; test_21's ``tags.size: 0.16``
+    over its tags 100-108 of 0.1 m): a PnP range scales with the edge, so each of their ranges comes out
+    given/stated times the true one, silently; the file's sizes are said, not taken (they may be another
+    recording's). Ignored tags and tags without a size are left out (they are not solved)."""
+    ids, counts = np.unique(ids[~np.isin(ids, list(options.ignore))], return_counts=True)
+    off: dict[tuple[float, float, str, str], list[tuple[int, int]]] = {}
+    for i, n in zip(ids.tolist(), counts.tolist()):
+        given, key = (options.sizes[i], "tags.sizes") if i in options.sizes else (options.size, "tags.size")
+        stated = files.tag_sizes.get(i)
+        if given is not None and stated is not None and not np.isclose(given, stated[0], rtol=1e-6, atol=0.0):
+            off.setdefault((stated[0], given, key, stated[1]), []).append((i, n))
+    out = []
+    for (stated, given, key, name), tags in sorted(off.items()):
+        listed = ", ".join(str(i) for i, _ in tags[:NAMED_IDS])
+        more = f" and {len(tags) - NAMED_IDS} more" if len(tags) > NAMED_IDS else ""
+        setting = ", ".join(f"{i}: {stated:g}" for i, _ in tags[:NAMED_IDS]) + (", ..." if more else "")
+        out.append(
+            f"warning: {name} states {stated:g} m for tag{'s' if len(tags) > 1 else ''} {listed}{more} "
+            f"({sum(n for _, n in tags)} detections), the run gave them {given:g} m ({key}): each of "
+            f"their ranges is {given / stated:.3g}x what {stated:g} m gives, and the map and poses that use them "
+            f"follow; if {name} is this log's, set tags.sizes: {{{setting}}}"
+        )
+    return out
 
 
 def _pose_notes(reject: np.ndarray, ignored: int, unsized: int, options: TagOptions) -> list[str]:
