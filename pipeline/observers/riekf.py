@@ -181,16 +181,6 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   the log sets how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is
   given in the configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track,
   session 22 (h-riekf22)").
-* Biases held: while the map holds fewer landmarks than ``ObserverOptions.min_landmarks_bias`` (3, the count below
-  which the observers freeze their bias adaptation, docs/observers.md §3.2), the detections leave the bias states as
-  they are: the frame's update is a Schmidt update (the biases considered, not estimated): the pose, the map and their
-  correlations with the biases are updated, the biases' estimate and their own covariance block are not
-  (:func:`_hold_bias_block`). One or two landmarks seen from a short stretch resolve a bias only along directions
-  they barely constrain (TagSLAM's test_22: two tags, a velocity bias of 0.18 m/s along z learned in 9.4 s where the
-  truth's fit is under 0.01), and a bias learned there is carried through the next blind stretch. From the frame at
-  which the map holds that many landmarks the update is the plain one. run.json ``observer.filter.bias_release``
-  (the count and the log time of the release, null when never). At-rest readings and the floor's rows still update
-  the biases (they measure them, whatever the map).
 * Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
   that keep each landmark's dead-reckoned position still between pairs of its detections
   (:func:`pipeline.noise_estimation.pair_bias_estimate`, each pair weighed by its detections' and its dead
@@ -307,9 +297,7 @@ _GWALK, _GWALK_MAX = 13, 14
 #: A still stretch's running sums (:func:`_still_update`): its first sample's time, the samples, the gyro's and the
 #: velocity's sums.
 _STILL_T0, _STILL_N, _STILL_SUM = 15, 16, 17
-#: When the bias states were released to the detections (module docstring, "Biases held"; inf: not yet).
-_BIAS_FREE_T = 23
-_N_CLOCKS = 24
+_N_CLOCKS = 23
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -332,10 +320,7 @@ _WALK_N, _WALK_RAISES, _WALK_FIXED = 23, 24, 25
 _TAIL_GATED, _LONGEST_GATED, _OPEN_GATED = 26, 27, 28
 #: The gyro-bias walk's raises and whether it is fixed (the velocity's are ``_WALK_RAISES`` and ``_WALK_FIXED``).
 _GWALK_RAISES, _GWALK_FIXED = 29, 30
-#: Biases held (module docstring, "Biases held"): whether the detections leave the bias states as they are (a Schmidt
-#: update), and the landmarks the map must hold before they are released.
-_BIAS_HELD, _BIAS_NEED = 31, 32
-N_SLOTS = 33
+N_SLOTS = 31
 #: The two bias walks (module docstring, "Gyro-bias walk"), gyro then velocity: each one's ``fs`` slots (variance
 #: factor, the largest ratio), ``ns`` slots (raises, fixed), ``win_sum`` row
 #: (its corrections' ring; the next row their expectation's).
@@ -1389,10 +1374,7 @@ def update(
             ns[_SKIPPED] += 1
         else:
             xi = _gain(hp, smat, z, k3, d)
-            if ns[_BIAS_HELD]:  # the bias states considered, not updated (module docstring, "Biases held")
-                xi[6:N_FIXED] = 0.0
-            else:
-                _bias_corrections(xi, hp, k3, win_sum)
+            _bias_corrections(xi, hp, k3, win_sum)
             terms += k3
     rows = np.empty(max(next_nd, 0), np.int64)  # the next frame's known landmarks: their rows of Σ mirrored
     n_rows = next_nd if next_nd < 0 else 0
@@ -1402,8 +1384,6 @@ def update(
             rows[n_rows] = N_FIXED + 3 * o
             n_rows += 1
     apply(cov, d, lt, rt, terms, dp, rows, n_rows)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
-    if xi.shape[0] > 0 and ns[_BIAS_HELD]:  # a Schmidt update: the bias block's downdate added back
-        _hold_bias_block(cov, lt[6:], terms - 6)
     if xi.shape[0] > 0:
         _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
         ns[_UPDATES] += 1
@@ -1423,20 +1403,6 @@ def update(
         _reset_landmark(cov, d, d, sig2[j], ues, j)
         d += 3
     return d
-
-
-@njit(cache=True)
-def _hold_bias_block(cov, u, k3):
-    """The bias block of ``Σ`` put back as it was before a frame's downdate ``−UUᵀ`` (``u`` = ``Uᵀ``, ``k3`` × d):
-    while the biases are held (module docstring, "Biases held") a frame updates the pose, the map and their
-    correlations with the biases, not the biases' own block (a Schmidt update, as :func:`whitened_update`'s)."""
-    for i in range(6, N_FIXED):
-        for j in range(i, N_FIXED):
-            v = 0.0
-            for k in range(k3):
-                v += u[k, i] * u[k, j]
-            cov[i, j] += v
-            cov[j, i] = cov[i, j]
 
 
 def correlation_arrays(n_landmarks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1869,9 +1835,6 @@ def _advance(
             nd = det_offsets[jf + 1] - a0
             work += d * d * (3 * nd + 6) // _FRAME_WORK_SCALE
             _blind_start(t_next, nd, a0, det_idx, slot_of, reinit, fs, ns)
-            if ns[_BIAS_HELD] and (d - N_FIXED) // 3 >= ns[_BIAS_NEED]:  # enough landmarks: the biases released
-                ns[_BIAS_HELD] = 0
-                fs[_BIAS_FREE_T] = t_next
             next_nd = det_offsets[jf + 2] - det_offsets[jf + 1] if jf + 1 < n_frames else -1
             d = update(
                 a0,
@@ -1998,7 +1961,6 @@ class _State(KernelState):
         self.fs[_WALK] = self.fs[_GWALK] = 1.0
         self.fs[_DSCALE] = 1.0
         self.fs[_KNOWN_T] = np.inf  # no known landmark's detection yet: no blind stretch either
-        self.fs[_BIAS_FREE_T] = np.inf
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
         dim += -dim % PAD  # whole vectors for the one-pass sums (apply); the dimensions past the state stay zero
@@ -2144,9 +2106,6 @@ class RiEKF(Stepper):
         )
         # a walk given in the configuration is kept; else it is learned from the log (module docstring)
         self.state.ns[_WALK_FIXED] = int(nz.sources.get("velocity_bias_walk") == "config")
-        # the biases held while the map holds fewer landmarks than the observers adapt theirs with (module docstring)
-        self.state.ns[_BIAS_NEED] = int(options.min_landmarks_bias)
-        self.state.ns[_BIAS_HELD] = int(options.min_landmarks_bias > 0)
         if pp["used"]:
             self.state.b_om[:], self.state.b_v[:] = pp["bias"][:3], pp["bias"][3:]
         self.state.fs[_GWALK], self.state.fs[_WALK] = self._walk0
@@ -2620,10 +2579,6 @@ class RiEKF(Stepper):
                 for r in self.state.blind_log[: min(int(ns[_RELOCS]), MAX_LOG)]
             ],
             "walk": self._walk(),
-            "bias_release": {
-                "landmarks": int(ns[_BIAS_NEED]),
-                "released_at_s": round(float(fs[_BIAS_FREE_T]) - t0, 3) if np.isfinite(fs[_BIAS_FREE_T]) else None,
-            },
             "bias_priors": {
                 "from_pairs": self.pair_prior,
                 "narrowed_passes": self._prior_passes,
