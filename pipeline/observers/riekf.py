@@ -55,7 +55,13 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   consistent again: the estimate may be lost); from a third one on the landmarks that failed the gate are
   also re-initialised (at their next detection, like a new one). The filter gives up (status ``lost``, an
   ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
-  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
+  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level)
+  once the landmarks that failed were re-initialised: before, such a window re-initialises them now and changes
+  no noise. A landmark started from a detection carrying another landmark's id (one not yet seen) sits metres from
+  every true detection of it; in view alone it filled a window no noise level explains, and the filter gave up
+  at that first window with 0 recoveries on a run 0.19 m off (docs/benchmarks.md, "riekf's false lost, session 39
+  (h-falselost2)"). The filter keeps updating after it gave up (only the recoveries stop): where the windows pass
+  again to the log's end, the run says from when, and only the stretch before is called no estimate.
   With one detection per frame the window cannot tell a pose error from the detections' noise
   (:func:`_common_share` unknown): a factor the detections cannot have goes to the motion alone, not a give-up
   (docs/benchmarks.md, "riekf's floor without heading, session 30 (h-floorweight)"). On a log where no window
@@ -297,7 +303,10 @@ _GWALK, _GWALK_MAX = 13, 14
 #: A still stretch's running sums (:func:`_still_update`): its first sample's time, the samples, the gyro's and the
 #: velocity's sums.
 _STILL_T0, _STILL_N, _STILL_SUM = 15, 16, 17
-_N_CLOCKS = 23
+#: After the filter gave up (``_LOST_T``): the time of the first window of the passing windows that run to the end
+#: (0 where the last window failed; module docstring, "Recovery").
+_AGAIN_T = 23
+_N_CLOCKS = 24
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -449,6 +458,7 @@ RECOVERY_ACTIONS = {
     1: "the detection variances",
     2: "every noise variance and the covariance",
     3: "every noise variance and the covariance, re-initialising the landmarks that failed,",
+    4: "no noise: the landmarks that failed re-initialised (the detections' factor beyond what they can have)",
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
@@ -1658,6 +1668,8 @@ def _window_check(
     changed = False
     if gated <= RECOVER_SHARE * n:
         ns[_FAILING] = 0
+        if ns[_LOST] and fs[_AGAIN_T] <= fs[_LOST_T]:  # passing again after the give-up: the first window of a run
+            fs[_AGAIN_T] = t
         _consistency_check(t, ns, win_sum, consistency_log)
         changed = _walk_check(t, fs, ns, win_sum, walk_log)
     elif ns[_LOST] == 0:
@@ -1672,10 +1684,15 @@ def _window_check(
         motion = failing >= 2 or share > COMMON_SHARE or beyond
         detections = (failing >= 2 or not motion) and not beyond
         det = fs[_DSCALE] * step if detections else fs[_DSCALE]
-        if ns[_FAILING] >= MAX_FAILING or det > max_scale:
+        # the landmarks that failed start afresh from the third failing window in a row on; a factor no detection can
+        # have gives up only once that was tried: before, the failures may be landmarks started at a wrong place
+        if ns[_FAILING] >= MAX_FAILING or (det > max_scale and ns[_FAILING] >= 3):
             ns[_LOST] = 1
             fs[_LOST_T] = t
         else:
+            if det > max_scale:  # not tried yet: those landmarks start afresh now, the detection noise left alone
+                det = fs[_DSCALE]
+                failing = 3
             ns[_FAILING] = failing
             fs[_DSCALE] = det
             if motion:
@@ -1689,9 +1706,13 @@ def _window_check(
             r = ns[_RECOVERIES]
             if r < rec_log.shape[0]:
                 rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_DSCALE]
-                rec_log[r, 3] = 3 if failing >= 3 else 2 if detections and motion else 1 if detections else 0
+                rec_log[r, 3] = (
+                    (3 if motion else 4) if failing >= 3 else 2 if detections and motion else 1 if detections else 0
+                )
             ns[_RECOVERIES] += 1
             changed = True
+    else:  # failing again after the give-up: a passing run starts afresh
+        fs[_AGAIN_T] = 0.0
     gated_lm[:] = False
     win_sum[:4, :] = 0.0
     win_sum[5, :4] = 0.0
@@ -2569,6 +2590,7 @@ class RiEKF(Stepper):
             "detection_noise_factor": float(fs[_DSCALE]),
             "landmarks_reinitialised": int(ns[_REINIT]),
             "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
+            "passing_again_at_s": round(float(fs[_AGAIN_T]) - t0, 3) if ns[_LOST] and fs[_AGAIN_T] > 0 else None,
             "blind": [
                 {
                     "t_s": round(float(r[0]) - t0, 3),
@@ -3142,6 +3164,13 @@ def recovery_notes(filt: dict) -> list[str]:
     for r in filt["recovery_log"][:5]:
         grown = np.sqrt(r["detection_factor"])  # 'now x1 in standard deviation' said it was left alone
         det = "unchanged" if grown == 1.0 else f"{grown:.3g} times its standard deviation"
+        if r["action"] == RECOVERY_ACTIONS[4]:  # the give-up's factor, not applied (module docstring, "Recovery")
+            notes.append(
+                f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
+                f"re-initialising the landmarks that failed, no noise changed (the detection variances would have "
+                f"needed a factor of {r['factor']:.3g}, beyond what a detection can have)"
+            )
+            continue
         notes.append(
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
             f"multiplying {r['action']} by {r['factor']:.3g} (detection noise {det})"
@@ -3195,14 +3224,22 @@ def recovery_notes(filt: dict) -> list[str]:
     if filt["landmarks_reinitialised"]:
         notes.append(
             f"riekf: {filt['landmarks_reinitialised']} landmark(s) re-initialised from the pose after failing "
-            "the gate through two recoveries in a row"
+            "the gate through two recoveries in a row, or in a window no detection noise explains"
         )
     if filt["status"] == "lost":
+        again = filt.get("passing_again_at_s")
+        tail = (
+            "keep failing the gate after {} recoveries ({}); the trajectory after that time is not an estimate"
+            if again is None
+            else "failed the gate after {} recoveries ({}); they passed it again from "
+            f"{again:.2f} s to the end (the filter kept updating, without recoveries): the trajectory from "
+            f"{filt['lost_at_s']:.2f} s to {again:.2f} s is not an estimate"
+        )
+        factor = f"detection noise factor {filt['detection_noise_factor']:.3g}"
         notes.append(
-            f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections keep failing the gate "
-            f"after {filt['recoveries']} recoveries (detection noise factor {filt['detection_noise_factor']:.3g}); "
-            "the trajectory after that time is not an estimate (check the noise settings, the detections' "
-            "frames and the time stamps)"
+            f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections "
+            f"{tail.format(filt['recoveries'], factor)} (check the noise settings, the detections' frames and the "
+            "time stamps)"
         )
     return notes
 
