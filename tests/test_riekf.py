@@ -818,8 +818,9 @@ def test_landmarks_started_metres_off_are_started_again_before_the_filter_gives_
     """A detection carrying the id of a landmark not seen yet starts that landmark at another's place (1 % wrong ids,
     the lead's seed=9991): every true detection of it fails the gate, and a window of them asks a detection noise no
     detection can have. riekf gave up there, at its first failing window with 0 recoveries, on a run 0.19 m off;
-    now it re-initialises the landmarks that failed first (the recovery the third failing window makes) and gives
-    up only if that does not mend it. Here every landmark's first detection is 5 m off in a random direction."""
+    now the landmarks that failed there before ever passing the gate are re-initialised instead (no noise changed).
+    Here every landmark's first detection is 5 m off in a random direction. (An id reused for a landmark that
+    passed before still gives up: tests/test_robust_reference.py.)"""
     sc = get_scenario("figure8")
     sim = simulate(sc, duration=40.0, seed=4568)
     stream = align(expected_streams(sim), keep_directions=False)

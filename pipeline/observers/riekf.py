@@ -55,13 +55,15 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   consistent again: the estimate may be lost); from a third one on the landmarks that failed the gate are
   also re-initialised (at their next detection, like a new one). The filter gives up (status ``lost``, an
   ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
-  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level)
-  once the landmarks that failed were re-initialised: before, such a window re-initialises them now and changes
-  no noise. A landmark started from a detection carrying another landmark's id (one not yet seen) sits metres from
-  every true detection of it; in view alone it filled a window no noise level explains, and the filter gave up
-  at that first window with 0 recoveries on a run 0.19 m off (docs/benchmarks.md, "riekf's false lost, session 39
-  (h-falselost2)"). The filter keeps updating after it gave up (only the recoveries stop): where the windows pass
-  again to the log's end, the run says from when, and only the stretch before is called no estimate.
+  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level),
+  unless landmarks that never passed the gate failed in that window: those are re-initialised instead and no
+  noise changes. Such a landmark holds only the detection it was started from, which may have carried another
+  landmark's id (one not yet seen): it sits metres from every true detection of it, and in view alone it filled a
+  window no noise level explains; the filter gave up there, at its first failing window with 0 recoveries, on a
+  run 0.19 m off (docs/benchmarks.md, "riekf's false lost, session 39 (h-falselost2)"). A landmark that passed
+  before (an id reused, a tag moved) is not re-started by this. The filter keeps updating after it gave up (only
+  the recoveries stop): where the windows pass again to the log's end, the run says from when, and only the
+  stretch before is called no estimate.
   With one detection per frame the window cannot tell a pose error from the detections' noise
   (:func:`_common_share` unknown): a factor the detections cannot have goes to the motion alone, not a give-up
   (docs/benchmarks.md, "riekf's floor without heading, session 30 (h-floorweight)"). On a log where no window
@@ -458,7 +460,7 @@ RECOVERY_ACTIONS = {
     1: "the detection variances",
     2: "every noise variance and the covariance",
     3: "every noise variance and the covariance, re-initialising the landmarks that failed,",
-    4: "no noise: the landmarks that failed re-initialised (the detections' factor beyond what they can have)",
+    4: "no noise: the landmarks that failed before ever passing re-initialised (the detections' factor beyond any)",
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
@@ -1655,6 +1657,7 @@ def _window_check(
     gated_lm,
     reinit,
     slot_of,
+    corr_n,
     rec_log,
     consistency_log,
     walk_log,
@@ -1684,31 +1687,35 @@ def _window_check(
         motion = failing >= 2 or share > COMMON_SHARE or beyond
         detections = (failing >= 2 or not motion) and not beyond
         det = fs[_DSCALE] * step if detections else fs[_DSCALE]
-        # the landmarks that failed start afresh from the third failing window in a row on; a factor no detection can
-        # have gives up only once that was tried: before, the failures may be landmarks started at a wrong place
-        if ns[_FAILING] >= MAX_FAILING or (det > max_scale and ns[_FAILING] >= 3):
+        # a factor no detection can have, where landmarks that never passed the gate failed: those start afresh
+        # (each holds only the detection it was started from, which may have carried another landmark's id), no
+        # noise changed; with none, the filter gives up
+        unproven = 0
+        if det > max_scale:
+            for i in range(gated_lm.shape[0]):
+                if gated_lm[i] and slot_of[i] >= 0 and corr_n[i] == 0:
+                    unproven += 1
+        if ns[_FAILING] >= MAX_FAILING or (det > max_scale and unproven == 0):
             ns[_LOST] = 1
             fs[_LOST_T] = t
         else:
-            if det > max_scale:  # not tried yet: those landmarks start afresh now, the detection noise left alone
-                det = fs[_DSCALE]
-                failing = 3
+            fresh = det > max_scale
+            if fresh:
+                det, motion = fs[_DSCALE], False
             ns[_FAILING] = failing
             fs[_DSCALE] = det
             if motion:
                 fs[_SCALE] *= step
                 cov[:d, :d] *= step
-            if failing >= 3:
-                for i in range(gated_lm.shape[0]):
-                    if gated_lm[i] and slot_of[i] >= 0:
-                        reinit[i] = True
+            for i in range(gated_lm.shape[0]):
+                if gated_lm[i] and slot_of[i] >= 0 and (corr_n[i] == 0 if fresh else failing >= 3):
+                    reinit[i] = True
             ns[_OPEN_GATED] = 0  # a run this recovery handled (module docstring, "Bias priors narrowed")
             r = ns[_RECOVERIES]
             if r < rec_log.shape[0]:
                 rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_DSCALE]
-                rec_log[r, 3] = (
-                    (3 if motion else 4) if failing >= 3 else 2 if detections and motion else 1 if detections else 0
-                )
+                plain = 3 if failing >= 3 else 2 if detections and motion else 1 if detections else 0
+                rec_log[r, 3] = 4 if fresh else plain
             ns[_RECOVERIES] += 1
             changed = True
     else:  # failing again after the give-up: a passing run starts afresh
@@ -1915,6 +1922,7 @@ def _advance(
                 gated_lm,
                 reinit,
                 slot_of,
+                corr_n,
                 rec_log,
                 consistency_log,
                 walk_log,
@@ -3167,8 +3175,9 @@ def recovery_notes(filt: dict) -> list[str]:
         if r["action"] == RECOVERY_ACTIONS[4]:  # the give-up's factor, not applied (module docstring, "Recovery")
             notes.append(
                 f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
-                f"re-initialising the landmarks that failed, no noise changed (the detection variances would have "
-                f"needed a factor of {r['factor']:.3g}, beyond what a detection can have)"
+                f"re-initialising the landmarks that failed it before any of their detections passed, no noise "
+                f"changed (the detection variances would have needed a factor of {r['factor']:.3g}, beyond what a "
+                "detection can have)"
             )
             continue
         notes.append(
@@ -3224,7 +3233,7 @@ def recovery_notes(filt: dict) -> list[str]:
     if filt["landmarks_reinitialised"]:
         notes.append(
             f"riekf: {filt['landmarks_reinitialised']} landmark(s) re-initialised from the pose after failing "
-            "the gate through two recoveries in a row, or in a window no detection noise explains"
+            "the gate through two recoveries in a row, or before ever passing it in a window no noise explains"
         )
     if filt["status"] == "lost":
         again = filt.get("passing_again_at_s")
