@@ -3240,9 +3240,10 @@ def recovery_notes(filt: dict) -> list[str]:
         tail = (
             "keep failing the gate after {} recoveries ({}); the trajectory after that time is not an estimate"
             if again is None
-            else "failed the gate after {} recoveries ({}); they passed it again from "
+            else "failed the gate after {} recoveries ({}); they passed it again, at that noise, from "
             f"{again:.2f} s to the end (the filter kept updating, without recoveries): the trajectory from "
-            f"{filt['lost_at_s']:.2f} s to {again:.2f} s is not an estimate"
+            f"{filt['lost_at_s']:.2f} s to {again:.2f} s is not an estimate, and after it no closer than that noise "
+            "lets the gate tell"
         )
         factor = f"detection noise factor {filt['detection_noise_factor']:.3g}"
         notes.append(
