@@ -55,7 +55,15 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   consistent again: the estimate may be lost); from a third one on the landmarks that failed the gate are
   also re-initialised (at their next detection, like a new one). The filter gives up (status ``lost``, an
   ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
-  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
+  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level),
+  unless landmarks that never passed the gate failed in that window: those are re-initialised instead and no
+  noise changes. Such a landmark holds only the detection it was started from, which may have carried another
+  landmark's id (one not yet seen): it sits metres from every true detection of it, and in view alone it filled a
+  window no noise level explains; the filter gave up there, at its first failing window with 0 recoveries, on a
+  run 0.19 m off (docs/benchmarks.md, "riekf's false lost, session 39 (h-falselost2)"). A landmark that passed
+  before (an id reused, a tag moved) is not re-started by this. The filter keeps updating after it gave up (only
+  the recoveries stop): where the windows pass again to the log's end, the run says from when, and only the
+  stretch before is called no estimate.
   With one detection per frame the window cannot tell a pose error from the detections' noise
   (:func:`_common_share` unknown): a factor the detections cannot have goes to the motion alone, not a give-up
   (docs/benchmarks.md, "riekf's floor without heading, session 30 (h-floorweight)"). On a log where no window
@@ -297,7 +305,10 @@ _GWALK, _GWALK_MAX = 13, 14
 #: A still stretch's running sums (:func:`_still_update`): its first sample's time, the samples, the gyro's and the
 #: velocity's sums.
 _STILL_T0, _STILL_N, _STILL_SUM = 15, 16, 17
-_N_CLOCKS = 23
+#: After the filter gave up (``_LOST_T``): the time of the first window of the passing windows that run to the end
+#: (0 where the last window failed; module docstring, "Recovery").
+_AGAIN_T = 23
+_N_CLOCKS = 24
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -449,6 +460,7 @@ RECOVERY_ACTIONS = {
     1: "the detection variances",
     2: "every noise variance and the covariance",
     3: "every noise variance and the covariance, re-initialising the landmarks that failed,",
+    4: "no noise: the landmarks that failed before ever passing re-initialised (the detections' factor beyond any)",
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
@@ -1645,6 +1657,7 @@ def _window_check(
     gated_lm,
     reinit,
     slot_of,
+    corr_n,
     rec_log,
     consistency_log,
     walk_log,
@@ -1658,6 +1671,8 @@ def _window_check(
     changed = False
     if gated <= RECOVER_SHARE * n:
         ns[_FAILING] = 0
+        if ns[_LOST] and fs[_AGAIN_T] <= fs[_LOST_T]:  # passing again after the give-up: the first window of a run
+            fs[_AGAIN_T] = t
         _consistency_check(t, ns, win_sum, consistency_log)
         changed = _walk_check(t, fs, ns, win_sum, walk_log)
     elif ns[_LOST] == 0:
@@ -1672,26 +1687,39 @@ def _window_check(
         motion = failing >= 2 or share > COMMON_SHARE or beyond
         detections = (failing >= 2 or not motion) and not beyond
         det = fs[_DSCALE] * step if detections else fs[_DSCALE]
-        if ns[_FAILING] >= MAX_FAILING or det > max_scale:
+        # a factor no detection can have, where landmarks that never passed the gate failed: those start afresh
+        # (each holds only the detection it was started from, which may have carried another landmark's id), no
+        # noise changed; with none, the filter gives up
+        unproven = 0
+        if det > max_scale:
+            for i in range(gated_lm.shape[0]):
+                if gated_lm[i] and slot_of[i] >= 0 and corr_n[i] == 0:
+                    unproven += 1
+        if ns[_FAILING] >= MAX_FAILING or (det > max_scale and unproven == 0):
             ns[_LOST] = 1
             fs[_LOST_T] = t
         else:
+            fresh = det > max_scale
+            if fresh:
+                det, motion = fs[_DSCALE], False
             ns[_FAILING] = failing
             fs[_DSCALE] = det
             if motion:
                 fs[_SCALE] *= step
                 cov[:d, :d] *= step
-            if failing >= 3:
-                for i in range(gated_lm.shape[0]):
-                    if gated_lm[i] and slot_of[i] >= 0:
-                        reinit[i] = True
+            for i in range(gated_lm.shape[0]):
+                if gated_lm[i] and slot_of[i] >= 0 and (corr_n[i] == 0 if fresh else failing >= 3):
+                    reinit[i] = True
             ns[_OPEN_GATED] = 0  # a run this recovery handled (module docstring, "Bias priors narrowed")
             r = ns[_RECOVERIES]
             if r < rec_log.shape[0]:
                 rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_DSCALE]
-                rec_log[r, 3] = 3 if failing >= 3 else 2 if detections and motion else 1 if detections else 0
+                plain = 3 if failing >= 3 else 2 if detections and motion else 1 if detections else 0
+                rec_log[r, 3] = 4 if fresh else plain
             ns[_RECOVERIES] += 1
             changed = True
+    else:  # failing again after the give-up: a passing run starts afresh
+        fs[_AGAIN_T] = 0.0
     gated_lm[:] = False
     win_sum[:4, :] = 0.0
     win_sum[5, :4] = 0.0
@@ -1894,6 +1922,7 @@ def _advance(
                 gated_lm,
                 reinit,
                 slot_of,
+                corr_n,
                 rec_log,
                 consistency_log,
                 walk_log,
@@ -2569,6 +2598,7 @@ class RiEKF(Stepper):
             "detection_noise_factor": float(fs[_DSCALE]),
             "landmarks_reinitialised": int(ns[_REINIT]),
             "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
+            "passing_again_at_s": round(float(fs[_AGAIN_T]) - t0, 3) if ns[_LOST] and fs[_AGAIN_T] > 0 else None,
             "blind": [
                 {
                     "t_s": round(float(r[0]) - t0, 3),
@@ -3142,6 +3172,14 @@ def recovery_notes(filt: dict) -> list[str]:
     for r in filt["recovery_log"][:5]:
         grown = np.sqrt(r["detection_factor"])  # 'now x1 in standard deviation' said it was left alone
         det = "unchanged" if grown == 1.0 else f"{grown:.3g} times its standard deviation"
+        if r["action"] == RECOVERY_ACTIONS[4]:  # the give-up's factor, not applied (module docstring, "Recovery")
+            notes.append(
+                f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
+                f"re-initialising the landmarks that failed it before any of their detections passed, no noise "
+                f"changed (the detection variances would have needed a factor of {r['factor']:.3g}, beyond what a "
+                "detection can have)"
+            )
+            continue
         notes.append(
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
             f"multiplying {r['action']} by {r['factor']:.3g} (detection noise {det})"
@@ -3195,14 +3233,23 @@ def recovery_notes(filt: dict) -> list[str]:
     if filt["landmarks_reinitialised"]:
         notes.append(
             f"riekf: {filt['landmarks_reinitialised']} landmark(s) re-initialised from the pose after failing "
-            "the gate through two recoveries in a row"
+            "the gate through two recoveries in a row, or before ever passing it in a window no noise explains"
         )
     if filt["status"] == "lost":
+        again = filt.get("passing_again_at_s")
+        tail = (
+            "keep failing the gate after {} recoveries ({}); the trajectory after that time is not an estimate"
+            if again is None
+            else "failed the gate after {} recoveries ({}); they passed it again, at that noise, from "
+            f"{again:.2f} s to the end (the filter kept updating, without recoveries): the trajectory from "
+            f"{filt['lost_at_s']:.2f} s to {again:.2f} s is not an estimate, and after it no closer than that noise "
+            "lets the gate tell"
+        )
+        factor = f"detection noise factor {filt['detection_noise_factor']:.3g}"
         notes.append(
-            f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections keep failing the gate "
-            f"after {filt['recoveries']} recoveries (detection noise factor {filt['detection_noise_factor']:.3g}); "
-            "the trajectory after that time is not an estimate (check the noise settings, the detections' "
-            "frames and the time stamps)"
+            f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections "
+            f"{tail.format(filt['recoveries'], factor)} (check the noise settings, the detections' frames and the "
+            "time stamps)"
         )
     return notes
 
