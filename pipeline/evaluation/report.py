@@ -61,6 +61,8 @@ from slamobs.pipeline.evaluation.trajectory_evaluation import (
     ReportOptions,
     TrajectoryEvaluation,
     evaluate_trajectory,
+    TruthSpikes,
+    truth_spikes,
     valid_truth,
 )
 from slamobs.pipeline.lie import quats_to_rots, rots_to_quats
@@ -184,6 +186,7 @@ def evaluate_tables(
     :func:`.trajectory_evaluation.log_time_offset`), checked here instead of searching the estimate."""
     options = replace(options or ReportOptions(), **overrides)
     truth, invalid = valid_truth(truth)
+    truth, spikes = truth_spikes(truth)
     biases = BiasSection(bias_truth, options.bias_window_fraction)
     biases.process_data(tables.pop("biases", None))
     poses = tables.pop("poses")
@@ -243,7 +246,10 @@ def evaluate_tables(
         segments_done.result()
     if figures is not None:
         figures(segment_plot_jobs(segments.arrays))
-    return _report(sections, ev, truth, options, _report_notes(invalid, sections)), ev
+    report = _report(sections, ev, truth, options, _report_notes(invalid, spikes, sections))
+    if spikes is not None:
+        report["truth_spikes"] = spikes.record()
+    return report, ev
 
 
 def _segments_on_pairs(segments: SegmentErrorsSection, align: str, beside: list) -> Callable | None:
@@ -281,12 +287,15 @@ def _scene(landmarks: Table | None, landmark_truth, ev: TrajectoryEvaluation) ->
     return ev.alignment.positions(np.column_stack([column(landmarks, c, np.float64) for c in ("x", "y", "z")]))
 
 
-def _report_notes(invalid: int, sections: dict) -> list[str]:
-    """The report's notes: ``invalid`` truth poses dropped, then the sections' own (APE, map, time offset, APE by
-    alignment, RPE) and the NEES against a turned truth or one on a clock offset."""
+def _report_notes(invalid: int, spikes: TruthSpikes | None, sections: dict) -> list[str]:
+    """The report's notes: ``invalid`` truth poses dropped, the truth's ``spikes`` (:func:`.truth_spikes`), then the
+    sections' own (APE, map, time offset, APE by alignment, RPE) and the NEES against a turned truth or one on a
+    clock offset."""
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
+    if spikes is not None:
+        notes.append(spikes.note())
     nees = nees_against_turned_truth(sections["ape"].result["truth_frame_turn"], sections["uncertainty"].notes)
     nees = nees_against_offset_truth(sections["time_offset"].result, nees)
     notes += sections["ape"].notes + sections["landmarks"].notes + sections["time_offset"].notes
@@ -486,6 +495,14 @@ def verdict_warnings(report: dict[str, Any], metadata: dict[str, Any]) -> list[s
         )
     else:
         return []
+    if spikes := report.get("truth_spikes"):  # the truth's own glitches (:func:`.truth_spikes`)
+        share = f"{spikes['count']} spikes ({100 * spikes['fraction']:.2g} % of its poses"
+        said += (
+            f"; the truth's {share}) left out (report.json truth_spikes)"
+            if spikes["dropped"]
+            else f"; the truth itself has {share}), too many to leave out: the verdict may be the truth's "
+            "(report.json truth_spikes)"
+        )
     advice = VERDICT_ADVICE.get(name) or (VERDICT_ADVICE_FIXED if not get_estimator(name).uses_noise else "")
     return [f"warning: {name}: {said}{'; ' + advice if advice else ''}"]
 
