@@ -2442,3 +2442,13 @@ def test_the_verdicts_warning_names_the_truths_spikes():
     assert "the truth's 85 spikes (0.94 % of its poses) left out" in said
     (said,) = verdict_warnings({"convergence": conv, "truth_spikes": {**spikes, "dropped": False}}, meta)
     assert "the verdict may be the truth's" in said
+    (said,) = verdict_warnings(
+        {"convergence": {"t_since_start_s": 1.0}, "truth_spikes": {**spikes, "dropped": False}}, meta
+    )
+    assert said.startswith(
+        "warning: riekf: by the truth its errors are the truth's as much as its own; the truth itself"
+    )
+    assert (
+        verdict_warnings({"convergence": {"t_since_start_s": 1.0}, "truth_spikes": {**spikes, "dropped": True}}, meta)
+        == []
+    )

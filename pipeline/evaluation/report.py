@@ -432,6 +432,9 @@ def run_hints(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
 BY_TRUTH = "by the truth"
 #: The lost verdict's warning after ``warning: <estimator>: ``.
 LOST_BY_TRUTH = f"{BY_TRUTH} its estimate never locked on to the motion"
+#: The warning of a truth too spiked to leave its spikes out (:func:`.trajectory_evaluation.truth_spikes`) where its
+#: verdict says nothing, after ``warning: <estimator>: ``.
+BAD_TRUTH = f"{BY_TRUTH} its errors are the truth's as much as its own"
 #: A coarse verdict is warned of where the steady error level is at least this share of the extent it is judged by
 #: (``slam_metrics.COARSE_SHARE`` qualifies the verdict from 0.1, lost is from 1): half the path's own RMS spread
 #: about its centre, the path's shape is no longer resolved, only where it went. A round rule, not fitted: MR.CLAM's
@@ -493,6 +496,8 @@ def verdict_warnings(report: dict[str, Any], metadata: dict[str, Any]) -> list[s
             f"{100 * conv['steady_level_share']:.0f} % of the {whose}, {extent:.3g} m {how}; report.json "
             "convergence.coarse): it gives where the path went, not its shape"
         )
+    elif (report.get("truth_spikes") or {}).get("dropped") is False:  # a bad truth: said whatever the verdict
+        said = BAD_TRUTH
     else:
         return []
     if spikes := report.get("truth_spikes"):  # the truth's own glitches (:func:`.truth_spikes`)
@@ -503,6 +508,8 @@ def verdict_warnings(report: dict[str, Any], metadata: dict[str, Any]) -> list[s
             else f"; the truth itself has {share}), too many to leave out: the verdict may be the truth's "
             "(report.json truth_spikes)"
         )
+    if said.startswith(BAD_TRUTH):  # only the bad truth said: no advice to the estimator
+        return [f"warning: {name}: {said}"]
     advice = VERDICT_ADVICE.get(name) or (VERDICT_ADVICE_FIXED if not get_estimator(name).uses_noise else "")
     return [f"warning: {name}: {said}{'; ' + advice if advice else ''}"]
 

@@ -695,15 +695,7 @@ def truth_spikes(truth: PoseStream) -> tuple[PoseStream, TruthSpikes | None]:
     spikes = TruthSpikes(count, n, jump_m, float(np.degrees(turn_rad)), dropped)
     if not dropped:
         return truth, spikes
-    return PoseStream(
-        truth.topic,
-        truth.frame_id,
-        truth.child_frame_id,
-        t[keep],
-        np.asarray(truth.rec_ns)[keep],
-        pos[keep],
-        quat[keep],
-    ), spikes
+    return pose_rows(truth, keep), spikes
 
 
 def log_time_offset(
@@ -822,13 +814,15 @@ def sorted_stream(stream: PoseStream) -> PoseStream:
     t = np.asarray(stream.t_ns, dtype=np.int64)
     if t.shape[0] < 2 or np.all(np.diff(t) >= 0):
         return stream
-    order = np.argsort(t, kind="stable")
-    return PoseStream(
-        stream.topic,
-        stream.frame_id,
-        stream.child_frame_id,
-        t[order],
-        np.asarray(stream.rec_ns)[order],
-        np.asarray(stream.position)[order],
-        np.asarray(stream.quat_xyzw)[order],
+    return pose_rows(stream, np.argsort(t, kind="stable"))
+
+
+def pose_rows(stream: PoseStream, rows: np.ndarray) -> PoseStream:
+    """``stream``'s poses at ``rows`` (indices or a mask): a truth sorted, or without the poses it cannot use."""
+    return replace(
+        stream,
+        t_ns=np.asarray(stream.t_ns, dtype=np.int64)[rows],
+        rec_ns=np.asarray(stream.rec_ns)[rows],
+        position=np.asarray(stream.position)[rows],
+        quat_xyzw=np.asarray(stream.quat_xyzw)[rows],
     )
