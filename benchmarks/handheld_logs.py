@@ -16,6 +16,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set extrinsic10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round11 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set wildtruth [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set review11 [--notes FILE]
@@ -46,6 +47,8 @@ camera extrinsic stated 5 cm off"). ``--set round11``: session 39's (``ROUND11``
 and 2**31-1, detections 10 % long or 5 % short, unnormalised quaternions, 2 Hz odometry, detection records bunched,
 an IMU rate halving, a landmark creeping, the odometry's angular velocity's sign flipped (docs/benchmarks.md, "Logs
 nobody has run yet, round 11").
+``--set wildtruth``: session 39's truth spikes (``WILDTRUTH``): 0.1-5 % of the truth's poses 0.1-3 m off or turned
+5-30 deg, and plain controls of every scenario (docs/benchmarks.md, "A truth with 1 % of its poses 1-3 m off").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
@@ -184,6 +187,8 @@ class Case:
     gyro_step: tuple[float, tuple[float, float, float]] | None = None  # (at s, rad/s): a gyro bias added from then
     truth_until: float = 0.0  # the motion capture's samples from this many seconds on dropped (it ends early)
     truth_wild: float = 0.0  # share of the motion capture's poses moved 1-3 m in a random direction (marker swaps)
+    truth_wild_m: tuple[float, float] = (1.0, 3.0)  # how far those poses are moved (m, uniform)
+    truth_wild_deg: tuple[float, float] = (0.0, 0.0)  # instead turned this much (deg, uniform) about a random axis
     extreme_ids: bool = False  # the lowest landmark id written 0, the highest 2**31 - 1, the next 2**31 - 2
     det_scale: float = 1.0  # the detections' positions times this (a tag size stated wrong)
     quat_scale: tuple[float, float] = (1.0, 1.0)  # each detection's quaternion times uniform(lo, hi) (unnormalised)
@@ -652,6 +657,22 @@ REVIEW11 = (
     Case(4712, "flight", 90, "flight, clean", **R6),
     Case(4713, "ground", 180, "ground, clean", **R6),
 )
+#: truth spikes (session 39, docs/benchmarks.md "A truth with 1 % of its poses 1-3 m off"): 0.1-5 % of the motion
+#: capture's poses 0.1-3 m off or turned 5-30 deg, and plain logs of every scenario as controls
+WT = dict(imu_hz=200, odom_hz=10)
+WILDTRUTH = (
+    Case(4760, "handheld", 90, "0.1 % of truth poses 1-3 m off", truth_wild=0.001, **WT),
+    Case(4761, "handheld", 90, "1 % of truth poses 0.1-0.3 m off", truth_wild=0.01, truth_wild_m=(0.1, 0.3), **WT),
+    Case(4762, "handheld", 90, "5 % of truth poses 1-3 m off", truth_wild=0.05, **WT),
+    Case(4763, "handheld", 90, "3 % of truth poses 0.1-3 m off", truth_wild=0.03, truth_wild_m=(0.1, 3.0), **WT),
+    Case(4764, "handheld", 90, "1 % of truth poses turned 5-30 deg", truth_wild=0.01, truth_wild_deg=(5.0, 30.0), **WT),
+    Case(4765, "ground", 180, "ground, 1 % of truth poses 0.1-3 m off", truth_wild=0.01, truth_wild_m=(0.1, 3.0), **WT),
+    Case(4766, "flight", 90, "fast flight, 1 % of truth poses 1-3 m off", flight_period=15.0, truth_wild=0.01, **WT),
+    Case(4770, "handheld", 90, "hand-held, plain", **WT),
+    Case(4771, "ground", 180, "ground, plain", **WT),
+    Case(4772, "flight", 90, "flight, plain", **WT),
+    Case(4773, "flight", 90, "fast flight (15 s period: 6.4 m/s, yaw rate 2 rad/s), plain", flight_period=15.0, **WT),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -667,6 +688,7 @@ SETS = {
     "extrinsic10": EXTRINSIC10,
     "round11": ROUND11,
     "review11": REVIEW11,
+    "wildtruth": WILDTRUTH,
 }
 
 
@@ -1091,9 +1113,18 @@ def misdrawn11(sim, case: Case, sc):
     if case.truth_wild:
         sel = rng.random(len(moc.t_ns)) < case.truth_wild
         u = rng.standard_normal((sel.sum(), 3))
-        pos = moc.position.copy()
-        pos[sel] += u / np.linalg.norm(u, axis=1)[:, None] * rng.uniform(1.0, 3.0, (sel.sum(), 1))
-        moc = replace(moc, position=pos)
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        if case.truth_wild_deg != (0.0, 0.0):  # rotation-only spikes: the pose turned about u
+            from slamobs.pipeline.lie import so3_exps
+
+            angle = np.radians(rng.uniform(*case.truth_wild_deg, (sel.sum(), 1)))
+            rots = quats_to_rots(np.ascontiguousarray(moc.quat_xyzw, dtype=np.float64))
+            rots[sel] = np.matmul(rots[sel], so3_exps(np.ascontiguousarray(u * angle)))
+            moc = replace(moc, quat_xyzw=rots_to_quats(np.ascontiguousarray(rots)))
+        else:
+            pos = moc.position.copy()
+            pos[sel] += u * rng.uniform(*case.truth_wild_m, (sel.sum(), 1))
+            moc = replace(moc, position=pos)
     return replace(sim, detections=det, imu=imu, odom=odom, mocap=moc)
 
 

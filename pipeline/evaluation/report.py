@@ -62,6 +62,8 @@ from slamobs.pipeline.evaluation.trajectory_evaluation import (
     ReportOptions,
     TrajectoryEvaluation,
     evaluate_trajectory,
+    TruthSpikes,
+    truth_spikes,
     valid_truth,
 )
 from slamobs.pipeline.lie import quats_to_rots, rots_to_quats
@@ -184,6 +186,7 @@ def evaluate_tables(
     :func:`.trajectory_evaluation.log_time_offset`), checked here instead of searching the estimate."""
     options = replace(options or ReportOptions(), **overrides)
     truth, invalid = valid_truth(truth)
+    truth, spikes = truth_spikes(truth)
     biases = BiasSection(bias_truth, options.bias_window_fraction)
     biases.process_data(tables.pop("biases", None))
     poses = tables.pop("poses")
@@ -243,7 +246,10 @@ def evaluate_tables(
         segments_done.result()
     if figures is not None:
         figures(segment_plot_jobs(segments.arrays, ape.result.get("truth_frame_turn")))
-    return _report(sections, ev, truth, options, _report_notes(invalid, sections)), ev
+    report = _report(sections, ev, truth, options, _report_notes(invalid, spikes, sections))
+    if spikes is not None:
+        report["truth_spikes"] = spikes.record()
+    return report, ev
 
 
 def _segments_on_pairs(segments: SegmentErrorsSection, align: str, beside: list) -> Callable | None:
@@ -281,12 +287,15 @@ def _scene(landmarks: Table | None, landmark_truth, ev: TrajectoryEvaluation) ->
     return ev.alignment.positions(np.column_stack([column(landmarks, c, np.float64) for c in ("x", "y", "z")]))
 
 
-def _report_notes(invalid: int, sections: dict) -> list[str]:
-    """The report's notes: ``invalid`` truth poses dropped, then the sections' own (APE, map, time offset, APE by
-    alignment, RPE) and the NEES against a turned truth or one on a clock offset."""
+def _report_notes(invalid: int, spikes: TruthSpikes | None, sections: dict) -> list[str]:
+    """The report's notes: ``invalid`` truth poses dropped, the truth's ``spikes`` (:func:`.truth_spikes`), then the
+    sections' own (APE, map, time offset, APE by alignment, RPE) and the NEES against a turned truth or one on a
+    clock offset."""
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
+    if spikes is not None:
+        notes.append(spikes.note())
     nees = nees_against_turned_truth(sections["ape"].result["truth_frame_turn"], sections["uncertainty"].notes)
     nees = nees_against_offset_truth(sections["time_offset"].result, nees)
     notes += sections["ape"].notes + sections["landmarks"].notes + sections["time_offset"].notes
@@ -423,6 +432,9 @@ def run_hints(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
 BY_TRUTH = "by the truth"
 #: The lost verdict's warning after ``warning: <estimator>: ``.
 LOST_BY_TRUTH = f"{BY_TRUTH} its estimate never locked on to the motion"
+#: The warning of a truth too spiked to leave its spikes out (:func:`.trajectory_evaluation.truth_spikes`) where its
+#: verdict says nothing, after ``warning: <estimator>: ``.
+BAD_TRUTH = f"{BY_TRUTH} its errors are the truth's as much as its own"
 #: A coarse verdict is warned of where the steady error level is at least this share of the extent it is judged by
 #: (``slam_metrics.COARSE_SHARE`` qualifies the verdict from 0.1, lost is from 1): half the path's own RMS spread
 #: about its centre, the path's shape is no longer resolved, only where it went. A round rule, not fitted: MR.CLAM's
@@ -484,8 +496,20 @@ def verdict_warnings(report: dict[str, Any], metadata: dict[str, Any]) -> list[s
             f"{100 * conv['steady_level_share']:.0f} % of the {whose}, {extent:.3g} m {how}; report.json "
             "convergence.coarse): it gives where the path went, not its shape"
         )
+    elif (report.get("truth_spikes") or {}).get("dropped") is False:  # a bad truth: said whatever the verdict
+        said = BAD_TRUTH
     else:
         return []
+    if spikes := report.get("truth_spikes"):  # the truth's own glitches (:func:`.truth_spikes`)
+        share = f"{spikes['count']} spikes ({100 * spikes['fraction']:.2g} % of its poses"
+        said += (
+            f"; the truth's {share}) left out (report.json truth_spikes)"
+            if spikes["dropped"]
+            else f"; the truth itself has {share}), too many to leave out: the verdict may be the truth's "
+            "(report.json truth_spikes)"
+        )
+    if said.startswith(BAD_TRUTH):  # only the bad truth said: no advice to the estimator
+        return [f"warning: {name}: {said}"]
     advice = VERDICT_ADVICE.get(name) or (VERDICT_ADVICE_FIXED if not get_estimator(name).uses_noise else "")
     return [f"warning: {name}: {said}{'; ' + advice if advice else ''}"]
 

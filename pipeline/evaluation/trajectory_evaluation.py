@@ -37,7 +37,9 @@ from slamobs.pipeline.evaluation.trajectory_error import (
 from slamobs.pipeline.evaluation.sync import (
     ReferenceMotion,
     halves_spread,
+    interpolate_poses,
     rate_bias,
+    step_angles,
     time_offset_of_steps,
     velocity_steps,
 )
@@ -239,13 +241,14 @@ def evaluate_trajectory(
     found_offset: Callable[[], TimeOffset | None] | None = None,
 ) -> TrajectoryEvaluation:
     """Estimate the clock offset, associate, align and compute the APE vectors. ``checked``: ``truth`` is what
-    :func:`valid_truth` returned (not looked through again). ``judged``: the run is judged by this truth (the
-    report), which must cover enough of it (:func:`check_truth_coverage`, before anything else is computed).
+    :func:`valid_truth` and then :func:`truth_spikes` returned (not looked through again). ``judged``: the run is
+    judged by this truth (the report), which must cover enough of it (:func:`check_truth_coverage`, before anything
+    else is computed).
     ``on_pairs(paired, truth)`` is called as soon as the trajectories are paired (the truth in time order), before
     the alignment and the APE. ``found_offset()`` gives the clock offset searched another way (a run's:
     :func:`log_time_offset`), checked against the estimate instead of searching it."""
     if not checked:
-        truth, _ = valid_truth(truth)
+        truth = truth_spikes(valid_truth(truth)[0])[0]
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
     est = estimate_stream(poses)
@@ -536,6 +539,165 @@ def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
     ), int((~ok).sum())
 
 
+#: The chance, over a whole truth without a spike, that :func:`truth_spikes` calls one of its poses a spike: each
+#: pose's deviation is tested at ``TRUTH_SPIKE_FALSE_ALARM / n`` (a Bonferroni count over the truth's poses).
+TRUTH_SPIKE_FALSE_ALARM = 0.01
+#: A truth with more than this share of its poses spikes is not one with a few glitches (a marker swap, a frame the
+#: mocap lost) but a bad truth: the report says so and compares with it as it is, dropping none. A round rule: 1 in
+#: 20 poses off is no longer a glitch to leave out but the truth's own quality.
+TRUTH_SPIKES_MAX_FRACTION = 0.05
+#: A spike is off its neighbours by more than this many times the deviation the truth's poses reach at
+#: ``TRUTH_TAIL_PERCENTILE`` (one in ten): an order of magnitude. A motion capture's own jitter has tails far heavier
+#: than a normal law's (MR.CLAM's Vicon: 0.3 mm at the median, 0.8 at the 90th percentile, 8 mm at most; TUM's
+#: fr2_desk 3.4 mm, 1.4 deg): those stay, a marker swap's metres go.
+TRUTH_SPIKE_TAIL_X = 10.0
+TRUTH_TAIL_PERCENTILE = 90.0
+#: A spike's steps from both neighbours are faster than this many times the truth's own motion at
+#: ``TRUTH_MOTION_PERCENTILE`` (its steps' speeds and turn rates). The percentile is of the steps a truth within
+#: ``TRUTH_SPIKES_MAX_FRACTION`` keeps clean (each spike makes two steps: at most 10 % of them); 3x the speed the
+#: body exceeds a fifth of the time is a round bar (MR.CLAM's Vicon: steps 0.31 m/s at most, 0.12 at the 80th
+#: percentile; its jitter of up to 8 mm off the neighbours at 60 Hz is no faster than the robots).
+TRUTH_SPIKE_RATE_X = 3.0
+TRUTH_MOTION_PERCENTILE = 80.0
+#: Rounds of :func:`truth_spikes` (a spike beside another is found once the other is out); a round that finds
+#: none ends it.
+TRUTH_SPIKE_ROUNDS = 3
+
+
+@dataclass(frozen=True)
+class TruthSpikes:
+    """The truth's spikes (:func:`truth_spikes`): poses off both neighbours, which agree with each other.
+    ``count`` of ``n_poses``; the largest deviation from the neighbours' interpolation, in position and rotation;
+    ``dropped``: left out of the comparison (none where they are more than ``TRUTH_SPIKES_MAX_FRACTION``)."""
+
+    count: int
+    n_poses: int
+    largest_jump_m: float
+    largest_turn_deg: float
+    dropped: bool
+
+    @property
+    def fraction(self) -> float:
+        return self.count / self.n_poses
+
+    def record(self) -> dict:
+        """report.json's ``truth_spikes``."""
+        return {
+            "count": self.count,
+            "n_poses": self.n_poses,
+            "fraction": self.fraction,
+            "largest_jump_m": self.largest_jump_m,
+            "largest_turn_deg": self.largest_turn_deg,
+            "dropped": self.dropped,
+        }
+
+    def note(self) -> str:
+        """The report's note of them."""
+        share = f"{self.count} of {self.n_poses} ground-truth poses ({100 * self.fraction:.2g} %)"
+        what = (
+            f"are spikes, each off both its neighbours where those agree with each other (the largest "
+            f"{self.largest_jump_m:.3g} m, {self.largest_turn_deg:.3g} deg off them: a marker swap or a frame the "
+            "tracking lost)"
+        )
+        if self.dropped:
+            return (
+                f"truth: {share} {what}: dropped from the comparison, the APE, the verdicts and the NEES are "
+                "computed without them (report.json truth_spikes)"
+            )
+        return (
+            f"warning: truth: {share} {what}: more than {100 * TRUTH_SPIKES_MAX_FRACTION:.0f} % of it, the truth "
+            "itself is bad, not dropped: the errors, the verdicts and the NEES are the truth's as much as the "
+            "estimate's (report.json truth_spikes)"
+        )
+
+
+def _deviations(t: np.ndarray, pos: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, ...]:
+    """For each inner pose (1..n-2): its position's and rotation's deviation from the interpolation of its two
+    neighbours at its stamp (linear, slerp), and the neighbours' distance and angle to each other."""
+    n = t.shape[0]
+    at_pos, at_quat = np.empty((n, 3)), np.empty((n, 4))
+    bridge_m, bridge_rad = np.empty(n), np.empty(n)
+    for first in (0, 1):  # the odd poses between the even ones, and the even between the odd
+        rows = np.arange(1 - first, n, 2)
+        inner = rows[(rows > 0) & (rows < n - 1)]
+        if inner.size == 0:
+            continue
+        xyz, q = interpolate_poses(t[first::2], pos[first::2], quat[first::2], t[inner])
+        at_pos[inner], at_quat[inner] = xyz, q
+        side = pos[first::2]
+        bridge_m[inner] = np.linalg.norm(side[1:] - side[:-1], axis=1)[: inner.size]
+        bridge_rad[inner] = step_angles(quat[first::2])[: inner.size]
+    inner = slice(1, n - 1)
+    off_m = np.linalg.norm(pos[inner] - at_pos[inner], axis=1)
+    pairs = np.empty((2 * (n - 2), 4))
+    pairs[0::2], pairs[1::2] = quat[inner], at_quat[inner]
+    off_rad = step_angles(pairs)[0::2]
+    return off_m, off_rad, bridge_m[inner], bridge_rad[inner]
+
+
+def _outlying(off: np.ndarray, bridge: np.ndarray, rate: np.ndarray, n: int) -> np.ndarray:
+    """The spikes among deviations (a 3-vector's length, one per inner pose): poses off their neighbours by more
+    than those are apart (not on a sharp turn between them), reached by steps from both neighbours faster than
+    ``TRUTH_SPIKE_RATE_X`` times the truth's own motion (``rate``: each step's length over its time; the motion at
+    its ``TRUTH_MOTION_PERCENTILE``), and outliers of the truth's own deviations: beyond the χ²₃ quantile at
+    ``TRUTH_SPIKE_FALSE_ALARM / n`` of their median scale and beyond ``TRUTH_SPIKE_TAIL_X`` times their
+    ``TRUTH_TAIL_PERCENTILE`` (a motion capture's jitter has heavy tails). That scale is the poses' that are no
+    candidate (off and fast) and beside none (a spike moves its neighbours' interpolation by half its size): the
+    spikes, however many, do not set it."""
+    from slamobs.pipeline.noise import chi2_quantile
+
+    fast = TRUTH_SPIKE_RATE_X * float(np.percentile(rate, TRUTH_MOTION_PERCENTILE))
+    candidate = (off > bridge) & (np.minimum(rate[:-1], rate[1:]) > fast)
+    near = candidate.copy()
+    near[1:] |= candidate[:-1]
+    near[:-1] |= candidate[1:]
+    own = off[~near] if (~near).any() else off
+    scale2 = float(np.median(own * own)) / chi2_quantile(0.5, 3)
+    bound2 = max(
+        scale2 * chi2_quantile(1.0 - TRUTH_SPIKE_FALSE_ALARM / n, 3),
+        (TRUTH_SPIKE_TAIL_X * float(np.percentile(own, TRUTH_TAIL_PERCENTILE))) ** 2,
+    )
+    return candidate & (off * off > bound2)
+
+
+def truth_spikes(truth: PoseStream) -> tuple[PoseStream, TruthSpikes | None]:
+    """``truth`` (in time order) without its spikes, and what they were (None: none). A spike is a pose off both
+    its neighbours where they agree with each other: its deviation from their interpolation at its stamp (linear in
+    position, slerp in rotation) is an outlier of the truth's own deviations (:func:`_outlying`: the χ²₃ quantile
+    at ``TRUTH_SPIKE_FALSE_ALARM`` over the truth's poses, of their robust scale) and larger than the neighbours'
+    distance to each other; in position or in rotation. Fast motion moves the neighbours apart with it: a pose
+    on the way between them is none. Where the spikes are more than ``TRUTH_SPIKES_MAX_FRACTION`` of the poses the
+    truth is returned whole (a bad truth, :meth:`TruthSpikes.note`)."""
+    truth = sorted_stream(truth)
+    t = np.asarray(truth.t_ns, dtype=np.int64)
+    pos = np.asarray(truth.position, dtype=np.float64)
+    quat = np.ascontiguousarray(truth.quat_xyzw, dtype=np.float64)
+    n = t.shape[0]
+    keep = np.ones(n, dtype=bool)
+    jump_m = turn_rad = 0.0
+    for _ in range(TRUTH_SPIKE_ROUNDS):
+        rows = np.flatnonzero(keep)
+        if rows.size < 5:
+            break
+        off_m, off_rad, bridge_m, bridge_rad = _deviations(t[rows], pos[rows], quat[rows])
+        dt = np.maximum(np.diff(t[rows]), 1) * 1e-9  # two poses on one stamp: a step in a nanosecond
+        speed = np.linalg.norm(np.diff(pos[rows], axis=0), axis=1) / dt
+        spike = _outlying(off_m, bridge_m, speed, n) | _outlying(off_rad, bridge_rad, step_angles(quat[rows]) / dt, n)
+        if not spike.any():
+            break
+        jump_m = max(jump_m, float(off_m[spike].max()))
+        turn_rad = max(turn_rad, float(off_rad[spike].max()))
+        keep[rows[1:-1][spike]] = False
+    count = int(n - keep.sum())
+    if count == 0:
+        return truth, None
+    dropped = count <= TRUTH_SPIKES_MAX_FRACTION * n
+    spikes = TruthSpikes(count, n, jump_m, float(np.degrees(turn_rad)), dropped)
+    if not dropped:
+        return truth, spikes
+    return pose_rows(truth, keep), spikes
+
+
 def log_time_offset(
     truth: PoseStream,
     vel_t_ns: np.ndarray,
@@ -550,8 +712,8 @@ def log_time_offset(
     speed) correlated with the log's own velocity samples (:func:`.sync.velocity_steps`), which the estimate
     shares the clock with. Known before the estimate is (a run searches it beside the observer); an estimate
     that lags the motion (filtering) or is lost does not move it. The truth as the report takes it (valid poses,
-    ``frames.truth_rotation``, ``truth_in_body``, time order)."""
-    truth = sorted_stream(turned_truth(valid_truth(truth)[0], truth_rotation_xyzw, truth_in_body))
+    its spikes out, ``frames.truth_rotation``, ``truth_in_body``, time order)."""
+    truth = turned_truth(truth_spikes(valid_truth(truth)[0])[0], truth_rotation_xyzw, truth_in_body)
     if len(truth) == 0:
         return None
 
@@ -652,13 +814,15 @@ def sorted_stream(stream: PoseStream) -> PoseStream:
     t = np.asarray(stream.t_ns, dtype=np.int64)
     if t.shape[0] < 2 or np.all(np.diff(t) >= 0):
         return stream
-    order = np.argsort(t, kind="stable")
-    return PoseStream(
-        stream.topic,
-        stream.frame_id,
-        stream.child_frame_id,
-        t[order],
-        np.asarray(stream.rec_ns)[order],
-        np.asarray(stream.position)[order],
-        np.asarray(stream.quat_xyzw)[order],
+    return pose_rows(stream, np.argsort(t, kind="stable"))
+
+
+def pose_rows(stream: PoseStream, rows: np.ndarray) -> PoseStream:
+    """``stream``'s poses at ``rows`` (indices or a mask): a truth sorted, or without the poses it cannot use."""
+    return replace(
+        stream,
+        t_ns=np.asarray(stream.t_ns, dtype=np.int64)[rows],
+        rec_ns=np.asarray(stream.rec_ns)[rows],
+        position=np.asarray(stream.position)[rows],
+        quat_xyzw=np.asarray(stream.quat_xyzw)[rows],
     )
