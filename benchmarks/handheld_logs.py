@@ -606,6 +606,22 @@ ROUND11 = (
     Case(4635, "handheld", 90, "tag 10 creeps 1 cm/s from 20 s", creep=(10, 20.0, (0.01, 0.0, 0.0)), **R6),
     Case(4636, "ground", 180, "ground, odometry angular velocity sign flipped", "ros2", odom_angular_sign=-1.0, **R6),
 )
+#: the detections' positions scaled 0.9-1.2 (a detector given a tag size off, or a depth camera's scale) on a hand-held
+#: rig, a ground robot and a flight, and clean controls (session 39, docs/benchmarks.md "A detection scale named")
+TAGSCALE = (
+    *(
+        Case(4740 + 5 * k + j, rig, dur, f"{name}detections x{g:g}", det_scale=g, **R6)
+        for k, (rig, dur, name) in enumerate(
+            (("handheld", 90, ""), ("ground", 180, "ground, "), ("flight", 90, "flight, "))
+        )
+        for j, g in enumerate((0.9, 0.95, 1.05, 1.1, 1.2))
+    ),
+    Case(4755, "handheld", 90, "clean", **R6),
+    Case(4756, "handheld", 120, "clean", "bag", **R6),
+    Case(4757, "ground", 180, "ground, clean", **R6),
+    Case(4758, "flight", 90, "flight, clean", "ros2", **R6),
+    Case(4759, "flight", 120, "flight, clean", **R6),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -620,6 +636,7 @@ SETS = {
     "round10": ROUND10,
     "extrinsic10": EXTRINSIC10,
     "round11": ROUND11,
+    "tagscale": TAGSCALE,
 }
 
 
