@@ -16,6 +16,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set round10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set extrinsic10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round11 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set tagscale [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
 
@@ -44,7 +45,9 @@ camera extrinsic stated 5 cm off"). ``--set round11``: session 39's (``ROUND11``
 10 s, a robot reversing often, a gyro bias stepping mid-log, a truth cut at both ends or with 1 % wild poses, ids 0
 and 2**31-1, detections 10 % long or 5 % short, unnormalised quaternions, 2 Hz odometry, detection records bunched,
 an IMU rate halving, a landmark creeping, the odometry's angular velocity's sign flipped (docs/benchmarks.md, "Logs
-nobody has run yet, round 11").
+nobody has run yet, round 11"). ``--set tagscale``: session 39's (``TAGSCALE``): the detections' positions 0.9-1.2x
+on a hand-held rig, a ground robot and a flight, and clean controls (docs/benchmarks.md, "A detection scale on every
+axis").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground

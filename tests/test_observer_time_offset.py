@@ -17,6 +17,7 @@ from slamobs.pipeline.observers import time_offset
 from slamobs.pipeline.simulate import expected_streams, simulate
 from slamobs.pipeline.simulate.logwriter import write_log
 from cli_checks import invoke
+from noisy_logs import rig_noise
 
 LATE_S = 0.3
 
@@ -332,18 +333,10 @@ def test_a_detection_scale_on_every_axis_inside_the_velocity_band_is_named_and_i
     # word: the pairs' scale on every axis was 6-9 standard errors past 1, but inside VELOCITY_SCALE_OFF. Every axis
     # off alike (time_offset.common_scale) is now named, the causes with it; the same log as drawn says nothing
     from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.noise import DEFAULTS
     from slamobs.pipeline.run import prepare_log
-    from slamobs.pipeline.simulate import NoiseModel
     from slamobs.pipeline.simulate.scenarios import handheld
 
-    nm = replace(
-        NoiseModel(),
-        gyro=30 * DEFAULTS["gyro"][0] * np.sqrt(200.0),
-        odom_linear=10 * DEFAULTS["velocity"][0] * np.sqrt(10.0),
-        detection_base=0.03,
-        detection_per_m=0.006,
-    )
+    nm = rig_noise(200.0, 10.0)
     sim = simulate(handheld(), noise=nm, duration=90.0, seed=4740, imu_rate=200.0, odom_rate=10.0, detection_rate=15.0)
 
     def said(scale: float) -> list[str]:
