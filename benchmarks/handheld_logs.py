@@ -17,6 +17,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set extrinsic10 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set round11 [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set wildtruth [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set tagscale [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set review11 [--notes FILE]
@@ -49,6 +50,9 @@ an IMU rate halving, a landmark creeping, the odometry's angular velocity's sign
 nobody has run yet, round 11").
 ``--set wildtruth``: session 39's truth spikes (``WILDTRUTH``): 0.1-5 % of the truth's poses 0.1-3 m off or turned
 5-30 deg, and plain controls of every scenario (docs/benchmarks.md, "A truth with 1 % of its poses 1-3 m off").
+``--set tagscale``: session 39's (``TAGSCALE``): the detections' positions 0.9-1.2x
+on a hand-held rig, a ground robot and a flight, and clean controls (docs/benchmarks.md, "A detection scale on every
+axis").
 ``--set still``:
 session 36's rigs at rest 30-90 % of their log (``STILL``; docs/benchmarks.md, "A robot at rest with one landmark
 in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in place at a steady rate, a ground
@@ -673,6 +677,22 @@ WILDTRUTH = (
     Case(4772, "flight", 90, "flight, plain", **WT),
     Case(4773, "flight", 90, "fast flight (15 s period: 6.4 m/s, yaw rate 2 rad/s), plain", flight_period=15.0, **WT),
 )
+#: the detections' positions scaled 0.9-1.2 (a detector given a tag size off, or a depth camera's scale) on a hand-held
+#: rig, a ground robot and a flight, and clean controls (session 39, docs/benchmarks.md "A detection scale named")
+TAGSCALE = (
+    *(
+        Case(4740 + 5 * k + j, rig, dur, f"{name}detections x{g:g}", det_scale=g, **R6)
+        for k, (rig, dur, name) in enumerate(
+            (("handheld", 90, ""), ("ground", 180, "ground, "), ("flight", 90, "flight, "))
+        )
+        for j, g in enumerate((0.9, 0.95, 1.05, 1.1, 1.2))
+    ),
+    Case(4755, "handheld", 90, "clean", **R6),
+    Case(4756, "handheld", 120, "clean", "bag", **R6),
+    Case(4757, "ground", 180, "ground, clean", **R6),
+    Case(4758, "flight", 90, "flight, clean", "ros2", **R6),
+    Case(4759, "flight", 120, "flight, clean", **R6),
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -689,6 +709,7 @@ SETS = {
     "round11": ROUND11,
     "review11": REVIEW11,
     "wildtruth": WILDTRUTH,
+    "tagscale": TAGSCALE,
 }
 
 

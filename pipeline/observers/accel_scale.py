@@ -148,12 +148,16 @@ VELOCITY_CAUSE = (
     "the IMU's accelerometer says so too ({}): the velocity is off, its unit or axes (at the odometry's driver), not "
     "the detections' scale"
 )
+#: What scales the detections, which both sentences that name them say (``time_offset.SCALE_CAUSES`` too).
+DETECTION_SCALES = (
+    "tags.size, or tags.sizes per id: the black square's edge in m where the run finds the tags' poses from corners or "
+    "images, the tags' own scale then; the detector's tag size, or a depth camera's depth scale, where the log gives "
+    "their positions; or their unit"
+)
 #: ... when it says the velocity reads right.
 DETECTIONS_CAUSE = (
-    "the IMU's accelerometer says the velocity reads right ({}): the detections' scale is off (tags.size, or "
-    "tags.sizes per id: the black square's edge in m where the run finds the tags' poses from corners or images; "
-    "the detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic: a "
-    "camera turned or given as the inverse transform reads this way"
+    f"the IMU's accelerometer says the velocity reads right ({{}}): the detections' scale is off ({DETECTION_SCALES}), "
+    "or their frame's extrinsic: a camera turned or given as the inverse transform reads this way"
 )
 
 

@@ -49,7 +49,7 @@ from slamobs.pipeline.lie import (
     so3_jacobians_into,
     so3_log,
 )
-from slamobs.pipeline.observers.accel_scale import scale_cause, velocity_scale_by_accel
+from slamobs.pipeline.observers.accel_scale import DETECTION_SCALES, scale_cause, velocity_scale_by_accel
 from slamobs.pipeline.noise import LEVEL_CHOICE_P, chi2_quantile
 
 PAIR_SPAN_S = 1.0
@@ -616,6 +616,17 @@ def gyro_misreads(c: Consistency) -> dict[str, float]:
 #: 116 ± 12, the detections' unit this time).
 VELOCITY_SCALE_OFF = 1.5
 VELOCITY_SCALE_SIGMAS = 5.0
+#: Every fitted axis's scale off 1 the same way (a tag size or a depth camera's scale stretches all three alike; a
+#: VIO's scale too) is named inside ``VELOCITY_SCALE_OFF`` (:func:`common_scale`) where at least ``COMMON_SCALE_AXES``
+#: axes are fitted (one axis cannot tell a common scale from a wheel's: MR.CLAM's ten robots and every generated
+#: ground robot fit x alone), each axis is off 1 on the same side, and their weighted mean, as fitted and with the
+#: dilution taken off, is past ``VELOCITY_SCALE_SIGMAS`` standard errors from 1 and outside ``1 / COMMON_SCALE_OFF ..
+#: COMMON_SCALE_OFF``: 5 %, the smallest common scale whose cost docs/benchmarks.md's session 36 measured (a flight's
+#: every axis 5 % off: riekf's APE 1.2-1.5x, batch's 1.3-1.9x; a detection scale of 1.1 on a hand-held rig: 10x),
+#: where the real logs' means are 1.9-2.2 % off (TagSLAM 21 and 11, 15-40 standard errors: their calibration's,
+#: which taking off made the runs worse).
+COMMON_SCALE_AXES = 2
+COMMON_SCALE_OFF = 1.05
 #: An axis's scale is left unsaid when fitting the bias with it inflates its variance more than this (constant
 #: motion, where a scale and a bias are the same change: the simulator's circle 300-1,300,000; MR.CLAM 4-29, the
 #: figure 8 and the ground robot 1-26).
@@ -630,10 +641,8 @@ MIN_AXIS_SHARE = 0.05
 #: size in mm, 1000x), so it names both and the key of each.
 SCALE_CAUSES = (
     "either the velocity or the detections are off by that factor, and they cannot tell which: the velocity's unit "
-    "and axes (at the odometry's driver), or the detections' scale (tags.size, or tags.sizes per id: the black "
-    "square's edge in m where the run finds the tags' poses from corners or images, the tags' own scale then; the "
-    "detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic: a camera "
-    "turned or given as the inverse transform reads this way"
+    f"and axes (at the odometry's driver), or the detections' scale ({DETECTION_SCALES}), or their frame's extrinsic: "
+    "a camera turned or given as the inverse transform reads this way"
 )
 #: An axis's scale is left unsaid when the velocity's own noise (``AlignedStream.velocity_density``) is more than
 #: this share of what the fit sees of the axis (:func:`velocity_scale`'s dilution): the fitted scale is pulled toward
@@ -1183,6 +1192,31 @@ def _misread_axes(scale: dict) -> list[tuple[str, float]]:
     return out
 
 
+def common_scale(scale: dict) -> dict | None:
+    """The factor every fitted axis's scale says alike (``COMMON_SCALE_AXES``, ``COMMON_SCALE_OFF``,
+    ``VELOCITY_SCALE_SIGMAS``): ``{"scale", "sigma", "axes"}``, the axes' inverse-variance weighted mean, its standard
+    error and the axes' phrases (``x 1.08 ± 0.012``); None where fewer axes are fitted, an axis is off on the other
+    side of 1, or the mean is within ``COMMON_SCALE_OFF`` or ``VELOCITY_SCALE_SIGMAS`` standard errors of 1, as fitted
+    or with the dilution taken off (the truth lies between the two: :func:`velocity_scale`)."""
+    fitted = scale.get("fitted") or scale["scale"]
+    axes = [
+        (axis, g, e, g if g0 is None else g0)
+        for axis, g, e, g0 in zip("xyz", scale["scale"], scale["sigma"], fitted, strict=True)
+        if g is not None
+    ]
+    if len(axes) < COMMON_SCALE_AXES:
+        return None
+    w = np.array([1.0 / e**2 for _, _, e, _ in axes])
+    sigma = float(1.0 / np.sqrt(np.sum(w)))
+    means = [float(np.sum(w * np.array([a[k] for a in axes])) / np.sum(w)) for k in (1, 3)]
+    sides = {g > 1.0 for _, g, _, g0 in axes for g in (g, g0)}
+    if len(sides) > 1 or any(
+        1.0 / COMMON_SCALE_OFF <= g <= COMMON_SCALE_OFF or abs(g - 1.0) <= VELOCITY_SCALE_SIGMAS * sigma for g in means
+    ):
+        return None
+    return {"scale": means[0], "sigma": sigma, "axes": ", ".join(f"{a} {g:.3g} ± {e:.2g}" for a, g, e, _ in axes)}
+
+
 #: The velocity's lag against the angular velocity (two topics only: one odometry message's twist has one stamp):
 #: searched over ``±VELOCITY_LAG_MAX_S`` in ``VELOCITY_LAG_STEP_S`` steps; named (not applied) when the detections
 #: fit the velocity moved by it ``VELOCITY_LAG_GAIN`` times better than as stamped, it is at least
@@ -1669,6 +1703,17 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         # none on a log of too few pairs (:func:`estimate` returns before its checks)
         for what, g in (_misread_axes(scale) if scale else [])
     ]
+    common = common_scale(scale) if scale and not _misread_axes(scale) else None
+    if common is not None:  # inside VELOCITY_SCALE_OFF on every axis, but every axis off alike
+        found.append(
+            (
+                f"the detections say the body moved {common['scale']:.3g}x as far as its velocity says on every axis "
+                f"the pairs fit ({common['axes']}; {offset['pairs']} detection pairs, the odometry's bias fitted with "
+                f"it): {scale_cause(common['scale'], accel, SCALE_CAUSES)}{upset}",
+                "them",
+                ("odometry", "detections", "camera"),
+            )
+        )
     return [(sentence + stream_topics(topics, *names), used) for sentence, used, names in found]
 
 
