@@ -21,6 +21,7 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
     .venv/bin/python benchmarks/handheld_logs.py --set still [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set restriekf [--notes FILE]
     .venv/bin/python benchmarks/handheld_logs.py --set review11 [--notes FILE]
+    .venv/bin/python benchmarks/handheld_logs.py --set unseen11b [--notes FILE]
 
 ``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
 drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
@@ -59,6 +60,8 @@ in view"). ``--set restriekf``: session 37's (``RESTRIEKF``): rigs turning in pl
 log still 40 % in two stops (docs/benchmarks.md, "riekf's bias readings at rest, without batch's"). ``--set
 review11``: session 39's (``REVIEW11``): a twist of a point ahead with the odometry thinned at random, a camera's
 stated extrinsic tilted 2-5 deg, and controls (docs/benchmarks.md, "The review's leftovers of session 38").
+``--set unseen11b``: session 39's (``UNSEEN11B``): 24 plain logs, hand-held, ground and flight, 90-180 s, the
+controls of the "never settled" verdict (docs/benchmarks.md, "A "never settled" on plain logs").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -693,6 +696,19 @@ TAGSCALE = (
     Case(4758, "flight", 90, "flight, clean", "ros2", **R6),
     Case(4759, "flight", 120, "flight, clean", **R6),
 )
+#: session 39's controls for the "never settled" verdict (docs/benchmarks.md "A "never settled" on plain logs"):
+#: plain logs of every scenario, 90-180 s, no fault drawn in
+UNSEEN11B = tuple(
+    Case(seed, kind, duration, f"{kind}, clean, {duration} s", container, **R6)
+    for seed, (kind, duration, container) in zip(
+        range(4840, 4864),
+        [(k, d, c) for k, d in (("handheld", 90), ("ground", 180), ("flight", 90)) for c in ("mcap", "bag")]
+        + [(k, d, c) for k, d in (("handheld", 120), ("ground", 150), ("flight", 150)) for c in ("mcap", "ros2")]
+        + [(k, d, "mcap") for k, d in (("handheld", 180), ("ground", 120), ("flight", 120))] * 2
+        + [("handheld", 90, "mcap"), ("handheld", 150, "mcap"), ("ground", 90, "mcap")] * 2,
+        strict=True,
+    )
+)
 SETS = {
     "still": STILL,
     "round4": CASES,
@@ -710,6 +726,7 @@ SETS = {
     "review11": REVIEW11,
     "wildtruth": WILDTRUTH,
     "tagscale": TAGSCALE,
+    "unseen11b": UNSEEN11B,
 }
 
 

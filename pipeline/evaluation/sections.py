@@ -1426,7 +1426,10 @@ class ConvergenceSection(Section):
             "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
             "earlier_level_m, the median level over the tail_fraction before it, or above growth_factor × "
-            "before_tail_level_m, the median level over everything before it, and above threshold_m, unless it "
+            "before_tail_level_m, the median level over everything before it, and above threshold_m, and the rise "
+            "above growth_standard_errors × growth_se_m, the standard error of the rise were the level before the "
+            "tail one process (the scatter about a line of the medians over every tail-long stretch before the tail), "
+            "unless it "
             "settled in the frame of the run's end: tail_frame, the report's alignment kind fitted on the last "
             "tail_fraction's pairs only, its level within max(threshold_m, band_factor × its highest level over "
             "that tail) from at least 2 × tail_fraction before the end, without an earlier as long stay in that "
@@ -1481,6 +1484,8 @@ class ConvergenceSection(Section):
             "earlier_level_m": c["earlier_level"],
             "before_tail_level_m": c["before_tail_level"],
             "growth_factor": slam_metrics.GROWTH_FACTOR,
+            "growth_se_m": c["growth_se"],
+            "growth_standard_errors": slam_metrics.GROWTH_SES,
             "growing": c["growing"],
             "trajectory_extent_m": extent,
             "scene_extent_m": scene_m,

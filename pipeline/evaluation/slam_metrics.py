@@ -6,6 +6,7 @@ Pure functions over arrays; the report (:mod:`.report`) decides what to feed the
 from __future__ import annotations
 
 from collections.abc import Callable
+from statistics import NormalDist
 
 import numpy as np
 
@@ -161,6 +162,10 @@ TAIL_FRACTION = 0.2
 BAND_FACTOR = 1.5
 #: the error still grows when its median level over the last TAIL_FRACTION exceeds this times the stretch before
 GROWTH_FACTOR = 1.5
+#: ... and when that rise exceeds this many standard errors (:func:`growth_standard_error`): the one-sided 1 %
+#: normal quantile. A hand-held or ground robot's level wanders with its path (0.04-0.3 m on seed=4630), and a
+#: tail of 18 s holds one or two of its swings: riekf on 3 of 17 plain generated logs "never settled" without it
+GROWTH_SES = NormalDist().inv_cdf(0.99)
 #: a converged estimate is coarse when its steady level is above this share of the trajectory's extent (and above
 #: the threshold): it follows the motion, but "converged" alone would not say how loosely
 COARSE_SHARE = 0.1
@@ -232,9 +237,11 @@ def convergence(
     seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
     level is above it, or if the error still grows: its median level over the last ``TAIL_FRACTION`` above
     ``GROWTH_FACTOR`` times that over the ``TAIL_FRACTION`` before or times that over everything before the tail,
-    and above ``threshold``; a drifting estimate would otherwise be "converged" at its start, inside a band as
-    wide as its final error; the second comparison catches a drift that began earlier than the stretch before
-    the tail, e.g. dead reckoning after the landmarks left view), or if that steady level is
+    and above ``threshold``, and by more than ``GROWTH_SES`` standard errors of that rise
+    (:func:`growth_standard_error`, ``growth_se``: the level's own wander with the path is no growth); a drifting
+    estimate would otherwise be "converged" at its start, inside a band as wide as its final error; the second
+    comparison catches a drift that began earlier than the stretch before the tail, e.g. dead reckoning after the
+    landmarks left view), or if that steady level is
     above ``extent`` (the truth's RMS distance from its centre) and ``threshold``: an estimate that far off never
     locked on to the motion, whatever its level does, or if the level was within the band before for at least as
     long as from that time on and left it again (``recurring``, :func:`longest_earlier_stretch`; ``coarse``:
@@ -253,12 +260,15 @@ def convergence(
     before_tail = float(np.median(level[grid < cut])) if np.any(grid < cut) else None
     tail_level = float(np.median(level[grid >= cut]))
     lowest = min((x for x in (earlier, before_tail) if x is not None), default=None)
-    growing = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
+    share = TAIL_FRACTION if earlier is not None and lowest == earlier else 1.0 - TAIL_FRACTION
+    growth_se = growth_standard_error(grid, level, cut, share) if lowest is not None else None
+    risen = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
     recurring = longest_earlier_stretch(grid, level, band, k, window_ns)
-    refit_tail = growing and refit is not None and np.count_nonzero(t >= cut) >= TAIL_FRAME_MIN_PAIRS
+    refit_tail = risen and refit is not None and np.count_nonzero(t >= cut) >= TAIL_FRAME_MIN_PAIRS
     tail_frame = settled_in_tail_frame(t, refit(t >= cut), threshold) if refit_tail else None
+    growing = risen and tail_frame is None and tail_level - lowest > GROWTH_SES * growth_se
     if tail_frame is not None:
-        growing, recurring, k = False, None, int(np.searchsorted(grid, tail_frame["t_ns"]))
+        recurring, k = None, int(np.searchsorted(grid, tail_frame["t_ns"]))
     settled = steady_level if tail_frame is None else tail_frame["steady_level"]
     lost = extent is not None and settled > max(extent, threshold)
     coarse = extent is not None and not lost and settled > max(COARSE_SHARE * extent, threshold)
@@ -268,6 +278,7 @@ def convergence(
         "before_tail_level": before_tail,
         "tail_level": tail_level,
         "growing": bool(growing),
+        "growth_se": growth_se,
         "lost": bool(lost),
         "coarse": bool(coarse),
         "steady_error": metrics.median(e[t >= cut]),
@@ -278,6 +289,23 @@ def convergence(
         "tail_frame": tail_frame,
         "t_ns": None if k is None or growing or lost or recurring is not None else int(grid[k]),
     }
+
+
+def growth_standard_error(grid: np.ndarray, level: np.ndarray, cut: int, share: float) -> float:
+    """The standard error of the tail's median level less that of the stretch it is compared with (``share`` of
+    the span long, the tail ``TAIL_FRACTION``), were the level before the tail one process that neither grows nor
+    falls: the medians of the level over every stretch as long as the tail before ``cut`` (as many grid points),
+    their scatter ``s`` about a straight line fitted to them (a trend there is not scatter) is that of one
+    tail-long median, however the level is correlated (its swings with the path last as long as the tail: an
+    autocorrelation time summed over them cancels where the tail holds one crest); the compared stretch's median
+    scatters ``√(tail / share)`` times as much: ``s √(1 + TAIL_FRACTION / share)``."""
+    before, n = level[grid < cut], int(np.count_nonzero(grid >= cut))
+    if before.shape[0] < n + 2:
+        return 0.0
+    medians = np.median(np.lib.stride_tricks.sliding_window_view(before, n), axis=1)
+    x = np.arange(medians.shape[0], dtype=np.float64)
+    scatter = medians - np.polyval(np.polyfit(x, medians, 1), x)
+    return float(np.sqrt(np.mean(scatter**2)) * np.sqrt(1.0 + TAIL_FRACTION / share))
 
 
 def _within_band(t: np.ndarray, grid: np.ndarray, level: np.ndarray, threshold: float) -> tuple:
