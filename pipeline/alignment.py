@@ -138,6 +138,15 @@ GYRO_LAG_PROBE_S = 0.3
 #: ... and warns then only where the lag fits this well (a generated ground robot: 0.0035 of the odometry's variance;
 #: robot_localization's test1, a Husky whose wheels slip: 0.297, its best lag 0.4 s early a note, not a warning)
 GYRO_LAG_SLOW_MAX_MISFIT = 0.05
+#: ... and, on slow turns (where the gain asked is near 1), where that gain on the other half is ``GYRO_LAG_SIGMAS``
+#: standard errors of the misfits' difference or more (:func:`_lag_gain_sigmas`; the standard error from
+#: ``GYRO_LAG_BLOCKS`` consecutive blocks of the half: a t of 9 degrees of freedom, 3 is beyond its 99th
+#: percentile). The ratio alone asks the same of 360 samples as of 36,000: 2 Hz odometry on a ground robot's slow
+#: turns (seed=4632, 180 s) moved a right IMU by +0.060 s on a 1.045x held-out gain 1.3 standard errors from none.
+#: Fast turns ask ``GYRO_LAG_GAIN`` (4x), which no such noise gives; a 20 s figure 8's IMU 0.3 s late fits its other
+#: half 29x better, but with 100 samples a half only 2.5 standard errors (its few sharp turns carry the gain).
+GYRO_LAG_SIGMAS = 3.0
+GYRO_LAG_BLOCKS = 10
 #: ... and moves a stream only where the lag each half of the span finds fits the other half that much better than
 #: as stamped too (:func:`_held_out_gain`): the gain of the best of many lags on the same samples is biased up by
 #: the choice (a clean two-hour ground log, seed=3979, and a 10-minute one, seed=3983: 0.100 s, 1.05x better, on
@@ -913,10 +922,13 @@ def _gyro_lag(
         (GYRO_LAG_GAIN, GYRO_LAG_MAX_MISFIT) if not unseen else (1.0 + 0.5 * (power - 1.0), GYRO_LAG_SLOW_MAX_MISFIT)
     )
     moves = abs(lag) >= GYRO_LAG_WARN_S and m_best <= most and gain >= needed  # then the halves are asked
-    held = _held_out_gain(t_g, w_g, t_all, b_all, every, fine, half) if moves else gain
-    if not moves or held < needed:
+    held, sigmas = _held_out_gain(t_g, w_g, t_all, b_all, every, fine, half) if moves else (gain, np.inf)
+    if not moves or held < needed or (unseen and sigmas < GYRO_LAG_SIGMAS):
         found = f"; the best fit, {abs(lag):.3f} s {late}, is {gain:.3g}x better than as stamped"
-        found += f" ({held:.3g}x on the span's other half, not enough)" * bool(moves)
+        found += (
+            f" ({held:.3g}x on the span's other half, {sigmas:.2g} standard errors of its misfit's, not enough)"
+            * bool(moves)
+        )
         if not unseen and moves:  # fast turns: a lag that fit the whole span, not its halves, is not moved unsaid
             return [f"{gyro_topic}: its stamps were not moved against {twist.topic}'s own angular velocity{found}"], 0.0
         return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else [], 0.0
@@ -932,12 +944,14 @@ def _gyro_lag(
     ], lag
 
 
-def _held_out_gain(t_g, w_g, t_o, b, every: int, lags_s: np.ndarray, half_ns: int) -> float:
+def _held_out_gain(t_g, w_g, t_o, b, every: int, lags_s: np.ndarray, half_ns: int) -> tuple[float, float]:
     """How much better than as stamped the lag the gyro's fit finds on one half of the odometry's span (stamps
     ``t_o``, averaged ``b``; every ``every``-th stamp, on the grid ``lags_s``) fits the other half (all its stamps):
-    the smaller of the two ways round (``GYRO_LAG_SLOW_MAX_MISFIT``; inf where neither half can be told)."""
+    the smaller of the two ways round (``GYRO_LAG_SLOW_MAX_MISFIT``; inf where neither half can be told); and that
+    gain's weight, the smaller of the two halves' misfit differences in their standard errors
+    (:func:`_lag_gain_sigmas`; inf likewise)."""
     n = t_o.shape[0]
-    gains = []
+    gains, sigmas = [], []
     for fit, test in ((slice(0, n // 2), slice(n // 2, n)), (slice(n // 2, n), slice(0, n // 2))):
         m = lag_misfits(t_g, w_g, t_o[fit][::every], b[fit][::every], lags_s, half_ns)
         if not np.isfinite(m).any():
@@ -945,7 +959,39 @@ def _held_out_gain(t_g, w_g, t_o, b, every: int, lags_s: np.ndarray, half_ns: in
         m0, m_lag = lag_misfits(t_g, w_g, t_o[test], b[test], np.array([0.0, lags_s[np.nanargmin(m)]]), half_ns)
         if np.isfinite(m0) and np.isfinite(m_lag):
             gains.append(m0 / max(m_lag, 1e-12))
-    return min(gains, default=np.inf)
+            sigmas.append(_lag_gain_sigmas(t_g, w_g, t_o[test], b[test], float(lags_s[np.nanargmin(m)]), half_ns))
+    return min(gains, default=np.inf), min(sigmas, default=np.inf)
+
+
+def _lag_residuals(t_g, w_g, t_o, b, lag_s: float, half_ns: int) -> np.ndarray:
+    """Per odometry stamp, the squared residual :func:`lag_misfits` sums at the lag ``lag_s`` (the gyro averaged
+    ``lag_s`` later, turned by the rotation that fits it best onto ``b``, both centred), over ``b``'s centred sum of
+    squares: their sum is the misfit; NaN where the gyro has no sample."""
+    a = _windowed_mean(t_g, w_g, t_o + int(round(lag_s * 1e9)), half_ns)
+    ok = np.isfinite(a[:, 0])
+    out = np.full(t_o.shape[0], np.nan)
+    if np.count_nonzero(ok) < 2:
+        return out
+    x, y = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
+    u, _, vt = np.linalg.svd(x.T @ y)
+    u[:, -1] *= np.sign(np.linalg.det(u @ vt))  # a rotation, not a reflection
+    yy = float(np.sum(y * y))
+    out[ok] = np.sum((y - x @ (u @ vt)) ** 2, axis=1) / yy if yy > 0 else np.nan
+    return out
+
+
+def _lag_gain_sigmas(t_g, w_g, t_o, b, lag_s: float, half_ns: int) -> float:
+    """How many standard errors the misfit at the lag ``lag_s`` is below the misfit as stamped on the stamps ``t_o``
+    (``b`` averaged there): the per-stamp differences of :func:`_lag_residuals`' squares summed over
+    ``GYRO_LAG_BLOCKS`` consecutive blocks, the standard error from the blocks' spread (neighbouring stamps' residuals
+    share the motion's slow errors; blocks of seconds do not); inf where there are too few stamps to tell."""
+    d = _lag_residuals(t_g, w_g, t_o, b, 0.0, half_ns) - _lag_residuals(t_g, w_g, t_o, b, lag_s, half_ns)
+    d = d[np.isfinite(d)]
+    if d.shape[0] < 2 * GYRO_LAG_BLOCKS:
+        return np.inf
+    sums = np.array([x.sum() for x in np.array_split(d, GYRO_LAG_BLOCKS)])
+    se = float(np.std(sums, ddof=1)) * np.sqrt(GYRO_LAG_BLOCKS)
+    return float(d.sum()) / se if se > 0 else np.inf
 
 
 def _gyro_turn(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream) -> dict | None:
