@@ -649,6 +649,17 @@ def test_a_gyro_late_on_a_ground_robot_is_named_or_said_unchecked():
     assert f"The run moved its stamps by {-late:+.3f} s onto /odom's clock" in said[0], said  # session 27
 
 
+def _aligned_imu_late(sim, late_s: float):
+    """The generated log ``sim`` aligned with its IMU's stamps and record times ``late_s`` late."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams
+
+    shift = int(late_s * NS)
+    imu = replace(sim.imu, t_ns=sim.imu.t_ns + shift, rec_ns=sim.imu.rec_ns + shift)
+    return align(expected_streams(replace(sim, imu=imu), "x.mcap"))
+
+
 @pytest.mark.parametrize("late_s", [0.0, 0.3])
 def test_a_slow_ground_logs_gyro_is_moved_only_by_a_lag_both_halves_of_the_span_find(late_s):
     """A clean ten-minute ground robot (100 Hz IMU, 10 Hz odometry, the densities of round 8's seed=3983) on slow
@@ -659,17 +670,16 @@ def test_a_slow_ground_logs_gyro_is_moved_only_by_a_lag_both_halves_of_the_span_
     from dataclasses import replace
 
     from slamobs.pipeline.noise import DEFAULTS
-    from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
+    from slamobs.pipeline.simulate import NoiseModel, simulate
 
     nm = replace(
         NoiseModel(),
         gyro=10 * DEFAULTS["gyro"][0] * np.sqrt(100.0),
         odom_linear=5 * DEFAULTS["velocity"][0] * np.sqrt(10.0),
     )
-    sim = simulate("ground", noise=nm, duration=600.0, seed=3983, imu_rate=100.0, odom_rate=10.0)
-    shift = int(late_s * NS)
-    imu = replace(sim.imu, t_ns=sim.imu.t_ns + shift, rec_ns=sim.imu.rec_ns + shift)
-    stream = align(expected_streams(replace(sim, imu=imu), "x.mcap"))
+    stream = _aligned_imu_late(
+        simulate("ground", noise=nm, duration=600.0, seed=3983, imu_rate=100.0, odom_rate=10.0), late_s
+    )
     said = [n for n in stream.notes if "stamps look" in n]
     if late_s == 0.0:
         assert stream.gyro_moved_s == 0.0 and not said, said
@@ -689,7 +699,7 @@ def test_a_2hz_odometrys_lag_moves_the_imu_only_by_many_standard_errors(scenario
     from dataclasses import replace
 
     from slamobs.pipeline.noise import DEFAULTS
-    from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
+    from slamobs.pipeline.simulate import NoiseModel, simulate
     from slamobs.pipeline.simulate.scenarios import handheld
 
     nm = replace(
@@ -698,10 +708,9 @@ def test_a_2hz_odometrys_lag_moves_the_imu_only_by_many_standard_errors(scenario
         odom_linear=10 * DEFAULTS["velocity"][0] * np.sqrt(2.0),
     )
     sc, duration = ("ground", 180.0) if scenario == "ground" else (handheld(), 90.0)
-    sim = simulate(sc, noise=nm, duration=duration, seed=4787, imu_rate=200.0, odom_rate=2.0)
-    shift = int(late_s * NS)
-    imu = replace(sim.imu, t_ns=sim.imu.t_ns + shift, rec_ns=sim.imu.rec_ns + shift)
-    stream = align(expected_streams(replace(sim, imu=imu), "x.mcap"))
+    stream = _aligned_imu_late(
+        simulate(sc, noise=nm, duration=duration, seed=4787, imu_rate=200.0, odom_rate=2.0), late_s
+    )
     said = [n for n in stream.notes if "stamps look" in n]
     if late_s == 0.0:
         assert stream.gyro_moved_s == 0.0 and not said, said
