@@ -138,6 +138,16 @@ GYRO_LAG_PROBE_S = 0.3
 #: ... and warns then only where the lag fits this well (a generated ground robot: 0.0035 of the odometry's variance;
 #: robot_localization's test1, a Husky whose wheels slip: 0.297, its best lag 0.4 s early a note, not a warning)
 GYRO_LAG_SLOW_MAX_MISFIT = 0.05
+#: ... and, on slow turns (where the gain asked is near 1), where that gain on the other half is ``GYRO_LAG_SIGMAS``
+#: standard errors of the misfits' difference or more (:func:`_lag_gain_sigmas`; the standard error from
+#: ``GYRO_LAG_BLOCKS`` consecutive blocks of the half; two, the round rule: a t of 9 degrees of freedom is over it
+#: 4 % of the time, and both halves must be). The ratio alone asks the same of 360 samples as of 36,000: 2 Hz
+#: odometry on a ground robot's slow turns (seed=4632, 180 s) moved a right IMU by +0.060 s on a 1.045x held-out
+#: gain 1.3 standard errors from none (generated ground logs so moved: 0.75-1.32; their IMU 0.3 s late: 1.6-5.4).
+#: Fast turns ask ``GYRO_LAG_GAIN`` (4x), which no such noise gives; a 20 s figure 8's IMU 0.3 s late fits its other
+#: half 29x better, but with 100 samples a half only 2.5 standard errors (its few sharp turns carry the gain).
+GYRO_LAG_SIGMAS = 2.0
+GYRO_LAG_BLOCKS = 10
 #: ... and moves a stream only where the lag each half of the span finds fits the other half that much better than
 #: as stamped too (:func:`_held_out_gain`): the gain of the best of many lags on the same samples is biased up by
 #: the choice (a clean two-hour ground log, seed=3979, and a 10-minute one, seed=3983: 0.100 s, 1.05x better, on
@@ -158,6 +168,23 @@ GYRO_LAG_SLOW_MAX_MISFIT = 0.05
 GYRO_AXIS_WARN_DEG = 30.0
 GYRO_AXIS_MIN_RATE = 0.05
 GYRO_AXIS_MAX_MISFIT = 0.5
+
+#: The linear velocity's rate against the motion the IMU sees (:func:`_velocity_unresolved`): a velocity stream
+#: samples the body's motion at its own rate; motion above half that rate (its Nyquist frequency) folds onto slower
+#: motion in its samples, which no noise level or estimator undoes (a hand-held rig's 1.8 Hz step bob in 2 Hz
+#: odometry, round 11's seed=4631: the velocity level estimated 1.3-3.4x the white truth, riekf 0.258 m "yes", no
+#: word). The IMU's accelerometer, at its own rate, sees that motion: its spectrum (``UNRESOLVED_SEGMENTS_NYQUIST``
+#: Nyquist periods a segment, Hann-windowed, averaged) over ``(2 pi f)^2`` above the velocity's Nyquist frequency,
+#: the accelerometer's white floor (its median density over the top half of its band) taken off, is the velocity
+#: the stream cannot carry; a warning where its variance is ``UNRESOLVED_VELOCITY_SHARE`` or more of the velocity
+#: samples' own (centred, summed over the axes: frames do not matter).
+UNRESOLVED_SEGMENTS_NYQUIST = 8
+#: A tenth of the samples' variance: the folded motion then is a third of their spread (sqrt 0.1), beside which a
+#: white-noise level read from them is that motion's, not the sensor's (seed=4631: 56 %; a generated hand-held rig
+#: at 10 or 20 Hz and a flight at 2 Hz: none; robot_localization's test1 Husky, 10 Hz odometry beside a 30 Hz IMU:
+#: 0.0098 m/s, under 0.5 %). Not told apart: a stream that averages over its interval holds none of that motion
+#: (its samples' variance lacks it: 140 % on seed=4631's kind so sampled), and is named too.
+UNRESOLVED_VELOCITY_SHARE = 0.1
 #: gyro samples of that span the check takes, evenly spread (an hour at 400 Hz: 0.065 s of CPU with all 240,000
 #: of its first 600 s, 0.02 s so; the angle is the same on the logs tried)
 GYRO_AXIS_SAMPLES = 20000
@@ -913,10 +940,13 @@ def _gyro_lag(
         (GYRO_LAG_GAIN, GYRO_LAG_MAX_MISFIT) if not unseen else (1.0 + 0.5 * (power - 1.0), GYRO_LAG_SLOW_MAX_MISFIT)
     )
     moves = abs(lag) >= GYRO_LAG_WARN_S and m_best <= most and gain >= needed  # then the halves are asked
-    held = _held_out_gain(t_g, w_g, t_all, b_all, every, fine, half) if moves else gain
-    if not moves or held < needed:
+    held, sigmas = _held_out_gain(t_g, w_g, t_all, b_all, every, fine, half) if moves else (gain, np.inf)
+    if not moves or held < needed or (unseen and sigmas < GYRO_LAG_SIGMAS):
         found = f"; the best fit, {abs(lag):.3f} s {late}, is {gain:.3g}x better than as stamped"
-        found += f" ({held:.3g}x on the span's other half, not enough)" * bool(moves)
+        found += (
+            f" ({held:.3g}x on the span's other half, {sigmas:.2g} standard errors of its misfit's, not enough)"
+            * bool(moves)
+        )
         if not unseen and moves:  # fast turns: a lag that fit the whole span, not its halves, is not moved unsaid
             return [f"{gyro_topic}: its stamps were not moved against {twist.topic}'s own angular velocity{found}"], 0.0
         return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else [], 0.0
@@ -932,12 +962,14 @@ def _gyro_lag(
     ], lag
 
 
-def _held_out_gain(t_g, w_g, t_o, b, every: int, lags_s: np.ndarray, half_ns: int) -> float:
+def _held_out_gain(t_g, w_g, t_o, b, every: int, lags_s: np.ndarray, half_ns: int) -> tuple[float, float]:
     """How much better than as stamped the lag the gyro's fit finds on one half of the odometry's span (stamps
     ``t_o``, averaged ``b``; every ``every``-th stamp, on the grid ``lags_s``) fits the other half (all its stamps):
-    the smaller of the two ways round (``GYRO_LAG_SLOW_MAX_MISFIT``; inf where neither half can be told)."""
+    the smaller of the two ways round (``GYRO_LAG_SLOW_MAX_MISFIT``; inf where neither half can be told); and that
+    gain's weight, the smaller of the two halves' misfit differences in their standard errors
+    (:func:`_lag_gain_sigmas`; inf likewise)."""
     n = t_o.shape[0]
-    gains = []
+    gains, sigmas = [], []
     for fit, test in ((slice(0, n // 2), slice(n // 2, n)), (slice(n // 2, n), slice(0, n // 2))):
         m = lag_misfits(t_g, w_g, t_o[fit][::every], b[fit][::every], lags_s, half_ns)
         if not np.isfinite(m).any():
@@ -945,7 +977,39 @@ def _held_out_gain(t_g, w_g, t_o, b, every: int, lags_s: np.ndarray, half_ns: in
         m0, m_lag = lag_misfits(t_g, w_g, t_o[test], b[test], np.array([0.0, lags_s[np.nanargmin(m)]]), half_ns)
         if np.isfinite(m0) and np.isfinite(m_lag):
             gains.append(m0 / max(m_lag, 1e-12))
-    return min(gains, default=np.inf)
+            sigmas.append(_lag_gain_sigmas(t_g, w_g, t_o[test], b[test], float(lags_s[np.nanargmin(m)]), half_ns))
+    return min(gains, default=np.inf), min(sigmas, default=np.inf)
+
+
+def _lag_residuals(t_g, w_g, t_o, b, lag_s: float, half_ns: int) -> np.ndarray:
+    """Per odometry stamp, the squared residual :func:`lag_misfits` sums at the lag ``lag_s`` (the gyro averaged
+    ``lag_s`` later, turned by the rotation that fits it best onto ``b``, both centred), over ``b``'s centred sum of
+    squares: their sum is the misfit; NaN where the gyro has no sample."""
+    a = _windowed_mean(t_g, w_g, t_o + int(round(lag_s * 1e9)), half_ns)
+    ok = np.isfinite(a[:, 0])
+    out = np.full(t_o.shape[0], np.nan)
+    if np.count_nonzero(ok) < 2:
+        return out
+    x, y = a[ok] - a[ok].mean(axis=0), b[ok] - b[ok].mean(axis=0)
+    u, _, vt = np.linalg.svd(x.T @ y)
+    u[:, -1] *= np.sign(np.linalg.det(u @ vt))  # a rotation, not a reflection
+    yy = float(np.sum(y * y))
+    out[ok] = np.sum((y - x @ (u @ vt)) ** 2, axis=1) / yy if yy > 0 else np.nan
+    return out
+
+
+def _lag_gain_sigmas(t_g, w_g, t_o, b, lag_s: float, half_ns: int) -> float:
+    """How many standard errors the misfit at the lag ``lag_s`` is below the misfit as stamped on the stamps ``t_o``
+    (``b`` averaged there): the per-stamp differences of :func:`_lag_residuals`' squares summed over
+    ``GYRO_LAG_BLOCKS`` consecutive blocks, the standard error from the blocks' spread (neighbouring stamps' residuals
+    share the motion's slow errors; blocks of seconds do not); inf where there are too few stamps to tell."""
+    d = _lag_residuals(t_g, w_g, t_o, b, 0.0, half_ns) - _lag_residuals(t_g, w_g, t_o, b, lag_s, half_ns)
+    d = d[np.isfinite(d)]
+    if d.shape[0] < 2 * GYRO_LAG_BLOCKS:
+        return np.inf
+    sums = np.array([x.sum() for x in np.array_split(d, GYRO_LAG_BLOCKS)])
+    se = float(np.std(sums, ddof=1)) * np.sqrt(GYRO_LAG_BLOCKS)
+    return float(d.sum()) / se if se > 0 else np.inf
 
 
 def _gyro_turn(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream) -> dict | None:
@@ -1329,6 +1393,7 @@ def align(
         if rows:  # the samples beyond the gyro's range: not measurements of the rate (riekf and batch widen them)
             clipped = (*_clipped_spans(rows, _times(om, frame.time_source), om.xyz), max(r[3] for r in rows))
     topics = _role_topics(om, lv, det)
+    lv_own = (lv.topic, _times(lv, frame.time_source), lv.xyz) if lv.topic != gyro_topic else None
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     if release:
@@ -1339,7 +1404,7 @@ def align(
     )
     accel_blocks = None
     if accel is not None and accel.topic == gyro_topic:  # the IMU's own accelerometer
-        accel_blocks = _imu_accel_checks(dir_frame, warn, accel, t_om, omega, velocity, keep_accel)
+        accel_blocks = _imu_accel_checks(dir_frame, warn, accel, t_om, omega, velocity, keep_accel, lv_own)
     del accel, magnetic
     if release:
         streams.detections = None
@@ -1440,13 +1505,16 @@ def _role_topics(om: Vec3Stream, lv: Vec3Stream, det: DetectionStream | None) ->
     return topics
 
 
-def _imu_accel_checks(fr: _Frame, warn: WarnOnly, accel: Vec3Stream, t_om, omega, velocity, keep: bool):
+def _imu_accel_checks(fr: _Frame, warn: WarnOnly, accel: Vec3Stream, t_om, omega, velocity, keep: bool, lv_own):
     """The IMU's own accelerometer ``accel`` (on the gyro's topic): the gyro's scale against gravity (warn-only,
-    its note on ``fr``) and, when ``keep``, the accelerometer's blocks for the time offset's velocity-scale check
-    (``AlignedStream.accel_blocks``, else None)."""
+    its note on ``fr``), the velocity stream's rate against the motion (warn-only, :func:`_velocity_unresolved`;
+    ``lv_own``: its topic, stamps and samples, None where it is the IMU's topic) and, when ``keep``, the
+    accelerometer's blocks for the time offset's velocity-scale check (``AlignedStream.accel_blocks``, else None)."""
     head = _accel_head(accel, t_om)
     blocks = _accel_blocks(replace(fr, notes=[]), accel, t_om) if keep else None
     fr.notes.append(warn.add(_gyro_by_gravity, replace(fr, notes=[]), head, t_om, omega, velocity, unique=True))
+    if lv_own is not None:
+        fr.notes.append(warn.add(_velocity_unresolved, head, _times(head, fr.time_source), *lv_own))
     return blocks
 
 
@@ -1676,6 +1744,45 @@ def _accel_head(accel: Vec3Stream, t_om: np.ndarray) -> Vec3Stream:
     messages as the gyro's: twice its ``TILT_SAMPLES``), copied: a check run later holds no more of the stream."""
     head = slice(0, min(len(accel), 2 * min(t_om.shape[0], TILT_SAMPLES)))
     return replace(accel, t_ns=accel.t_ns[head].copy(), rec_ns=accel.rec_ns[head].copy(), xyz=accel.xyz[head].copy())
+
+
+def _velocity_unresolved(accel: Vec3Stream, t_acc: np.ndarray, lv_topic: str, t_v: np.ndarray, v: np.ndarray) -> list:
+    """A warning when the IMU's accelerometer (``accel``'s head, on the times ``t_acc``) shows linear motion above
+    the velocity stream's Nyquist frequency (``lv_topic``: its stamps ``t_v``, samples ``v``) that the stream
+    cannot carry: see ``UNRESOLVED_VELOCITY_SHARE``."""
+    if t_acc.shape[0] < 3 or t_v.shape[0] < 3:
+        return []
+    fs, f_n = 1e9 / float(np.median(np.diff(t_acc))), 0.5e9 / float(np.median(np.diff(np.sort(t_v))))
+    if not (np.isfinite(fs) and np.isfinite(f_n)) or fs <= 4.0 * f_n:  # too little of the IMU's band above f_n
+        return []
+    seg = 1 << int(np.ceil(np.log2(UNRESOLVED_SEGMENTS_NYQUIST * fs / f_n)))
+    x = accel.xyz[np.all(np.isfinite(accel.xyz), axis=1)]
+    k = x.shape[0] // seg
+    if k < 2:
+        return []
+    x = x[: k * seg].reshape(k, seg, 3)
+    w = np.hanning(seg)
+    spec = np.abs(np.fft.rfft((x - x.mean(axis=1, keepdims=True)) * w[None, :, None], axis=1)) ** 2
+    psd = 2.0 * spec.sum(axis=2).mean(axis=0) / (fs * float(w @ w))  # one-sided, summed over the axes
+    f = np.fft.rfftfreq(seg, 1.0 / fs)
+    floor = float(np.median(psd[f > 0.25 * fs]))
+    above = f > f_n
+    var_hi = float(np.sum(np.maximum(psd[above] - floor, 0.0) / (2.0 * np.pi * f[above]) ** 2) * (f[1] - f[0]))
+    span = (t_v >= t_acc[0]) & (t_v <= t_acc[-1])
+    vv = v[span & np.all(np.isfinite(v), axis=1)]
+    var_v = float(np.sum(vv.var(axis=0))) if vv.shape[0] >= 3 else 0.0
+    share = var_hi / var_v if var_v > 0 else np.inf
+    if not share >= UNRESOLVED_VELOCITY_SHARE:
+        return []
+    peak = float(f[above][np.argmax(np.maximum(psd[above] - floor, 0.0) / f[above] ** 2)])
+    return [
+        f"warning: {lv_topic}: its linear velocity at {2.0 * f_n:.3g} Hz is too slow for the motion: {accel.topic}'s "
+        f"accelerometer shows {np.sqrt(var_hi):.3g} m/s RMS of velocity above its {f_n:.3g} Hz Nyquist frequency "
+        f"(most near {peak:.2g} Hz), {100.0 * share:.0f} % of the velocity samples' variance, over the first "
+        f"{(t_acc[-1] - t_acc[0]) * 1e-9:.0f} s; the samples fold it onto slower motion that no noise level undoes "
+        f"(the velocity level estimated from them is too high, the estimate off by it): record a faster odometry "
+        f"topic (over {2.0 * peak:.2g} Hz, twice that motion's) or one that averages over its interval"
+    ]
 
 
 def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> list[str]:
