@@ -30,8 +30,8 @@ So the step is of the six-vector ``(δ, φ)``, ``φ`` a turn of the detections a
 ``PRIOR_TURN_RAD``); the shift judged is the position's with the turn held (as before), and no shift is applied
 where the turn explains the detections beyond the position (:func:`turned`) or the detection pairs' check names the
 camera turned (``time_offset.camera_named``): one cause, one message. Every χ² is divided by the detections'
-a-posteriori variance factor where above 1 (:func:`calibration`): the simulator's hand-held rig gave clean logs χ²
-of 6.3 on average against 3.
+a-posteriori variance factor where above 1 (:func:`calibration`): TagSLAM 21's residuals are 25x their stated σ, and
+its χ² of 32 named an 8 mm shift and, with the turn, a half-degree turn.
 """
 
 from __future__ import annotations
@@ -113,12 +113,14 @@ def step(problem, sol, offset: np.ndarray, origin: np.ndarray | None = None) -> 
 
 def variance_factor(ne, d: np.ndarray, w: np.ndarray) -> dict:
     """The detections' whitened residuals at the solution: their a-posteriori variance factor ``Σ dᵀ W d / (3m − p)``
-    (``p`` the landmarks' and keyframes' unknowns, ``3 n_lm + 6 k``) and the lag-1 correlation ``ρ`` of each landmark's
+    (``p`` the landmarks' unknowns ``3 n_lm``: the keyframes' poses are the odometry's as much, and counting them
+    took 3612 of a 60 s hand-held log's 4431 degrees of freedom, σ̂₀² 5.4-5.8 against 0.93-0.96; so a lower bound,
+    which never divides by more than the residuals show) and the lag-1 correlation ``ρ`` of each landmark's
     whitened residuals from one of its detections to the next (in time), with the variance a mean of such errors
     gains, ``(1 + ρ) / (1 − ρ)``."""
     m = d.shape[0]
     r = float(np.einsum("mi,mij,mj->", d, w, d))
-    dof = max(3 * m - 3 * ne.n_lm - 6 * ne.ad.shape[0], 1)
+    dof = max(3 * m - 3 * ne.n_lm, 1)
     e = d * np.sqrt(ne.weight)[:, None]
     order = np.lexsort((ne.kf, ne.idx))
     same = ne.idx[order][1:] == ne.idx[order][:-1]
@@ -147,9 +149,8 @@ def judged(shift: np.ndarray, cov: np.ndarray, factor: float = 1.0) -> tuple[int
 
 def calibration(vf: dict) -> float:
     """The factor the data's χ² are divided by (their covariance multiplied by): the detections' a-posteriori
-    variance factor ``σ̂₀²`` (:func:`variance_factor`) where above 1, else 1 (the stated noise taken where the
-    residuals are within it). Its degrees of freedom count every keyframe's pose against the detections (the
-    odometry fixes them too), so ``σ̂₀²`` is an upper bound: the χ² it leaves are at most the data's."""
+    variance factor ``σ̂₀²`` (:func:`variance_factor`, a lower bound) where above 1, else 1 (the stated noise taken
+    where the residuals are within it)."""
     return max(1.0, float(vf["s0"]))
 
 
