@@ -806,7 +806,7 @@ def _twist_turn_gain(offset: dict) -> float:
     return 0.0 if _best_misread(offset.get("gyro_misreads") or {}) else gain
 
 
-def _turn_phrase(rotvec_deg) -> str:
+def turn_phrase(rotvec_deg) -> str:
     """ "by 90 deg about the body's -x" for a rotation vector in degrees (its axis as a unit vector when it is not
     one of the body's)."""
     w = np.asarray(rotvec_deg, dtype=float)
@@ -1607,6 +1607,13 @@ def _small_turn_named(offset: dict) -> dict | None:
     return None if small["gain"] * TWIST_TURN_TIE < _twist_turn_gain(offset) else small
 
 
+def camera_named(offset: dict | None) -> bool:
+    """Whether the camera's warning names the detections turned (an axis turn, :func:`camera_turned`, or a small
+    turn, :func:`small_turn`): batch's fit of the sensor's position (``pipeline.smoother.extrinsic``) then applies
+    no shift and adds no sentence of its own (one cause, one message)."""
+    return bool(offset) and (camera_turned(offset) or _small_turn_named(offset) is not None)
+
+
 def _misreads(offset: dict) -> list[tuple[str, str]]:
     """What the detection pairs say is misread, one ``(sentence, what the estimate used)`` each: the sentence
     without an estimator's name or the run's tail, which :func:`note` adds ("it" / "them" as read). Each sentence
@@ -1653,14 +1660,14 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         turn = small or turn
         found.append(
             (
-                f"the detections fit the odometry {turn['gain']:.3g}x better turned {_turn_phrase(turn['rotvec_deg'])} "
+                f"the detections fit the odometry {turn['gain']:.3g}x better turned {turn_phrase(turn['rotvec_deg'])} "
                 f"({offset['pairs']} detection pairs, trimmed mean squared residual): {CAMERA_ADVICE} ({how}){alike}",
                 WHOLE_ESTIMATES[2] if small and not twist else "it",
                 ("detections", "camera", "odometry") if twist else ("detections", "camera"),
             )
         )
     elif twist and not found:  # the turn is the twist's alone: the world frame's and the velocity's scale follow
-        twisted = _turn_phrase(offset["twist_turn"]["rotvec_deg"])
+        twisted = turn_phrase(offset["twist_turn"]["rotvec_deg"])
         return [
             (
                 f"the detections fit the odometry {twist:.3g}x better with its twist turned {twisted} "

@@ -19,6 +19,7 @@ from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.noise import DETECTION_LAW_KEYS, DETECTION_RATIOS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.time_offset import camera_named as time_offset_named
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother import extrinsic as ex
@@ -427,7 +428,8 @@ class BatchSmoother(Stepper):
             out.summary = merged
             return out
 
-        problem, sol, rec, applied = ex.timed(problem, sol, np.asarray(sensor[1], float), again)
+        named = time_offset_named(self.time_offset)
+        problem, sol, rec, applied = ex.timed(problem, sol, np.asarray(sensor[1], float), again, named)
         if np.any(applied):
             self.stream = replace(
                 self.stream, det_y=self.stream.det_y + applied, det_sensor=(sensor[0], np.asarray(sensor[1]) + applied)
