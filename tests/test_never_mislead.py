@@ -840,6 +840,11 @@ def test_a_truth_of_a_frame_static_tf_places_on_the_body_is_carried_to_the_body(
     note = [n for n in wrong["notes"] if n.startswith("the truth is of the frame 'marker'")]
     assert len(note) == 1 and "the child_frame_id may not name the frame its poses are of" in note[0], wrong["notes"]
     assert not any("may not name" in n for r in ("odometry", "stated") for n in reports[r]["notes"])
+    # round 26: the sentence over the relative errors names frames.truth there, not frames.body (which carries the
+    # truth from the same child frame to the new body), and frames.truth: base_link below removes the turn
+    mend = wrong["ape"]["truth_frame_turn"]["mend"]
+    assert mend.startswith("frames.truth: FRAME") and "'marker'" in mend and "frames.body does not" in mend, mend
+    assert f"translation and rotation: {mend}." in (tmp_path / "mislabelled" / "report.md").read_text()
     stated = reports["mislabel_stated"]  # frames.truth: the body's own name compares it as it is
     assert stated["ape"]["translation_m"]["rmse"] == pytest.approx(base["translation_m"]["rmse"], rel=1e-6, abs=1e-9)
     assert stated["options"].get("truth_in_body") is None
