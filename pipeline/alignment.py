@@ -706,9 +706,10 @@ def check_required(streams: LogStreams, directions: int = 0, needed_by: str | No
     if missing or lacking:
         needed = len(REQUIRED_ROLES) + (directions if lacking else 0)
         roles = missing + lacking
-        poses = ""
-        if {"angular_velocity", "linear_velocity"} <= set(missing) and _has_samples(streams.truth):
-            poses = f"; {trajectory_use(streams.path, streams.truth.topic)}"  # a log of trajectories (evo's bags)
+        poses = (
+            trajectory_use(streams.path, streams.truth.topic, missing=missing) if _has_samples(streams.truth) else ""
+        )
+        poses = f"; {poses}" if poses else ""  # a log of trajectories (evo's bags, ETH's Vicon beside an IMU)
         untyped = ""
         if streams.untyped:  # a damaged metadata.yaml: the topic that would have given the role may be one
             verb = "has its" if len(streams.untyped) == 1 else "have their"

@@ -148,9 +148,9 @@ def readiness(info: LogInfo, config: RunConfig | None = None) -> Readiness:
     map_truth = f"{sim}  ({info.sim_truth})" if sim and info.sim_truth else ""
     truth = info.roles.get("truth", "")
     trajectory = ""
-    if truth and not {"angular_velocity", "linear_velocity"} & found:
+    if truth:
         others = [t.topic for t in info.topics if t.count and t.msgtype in accepted_types("truth") and t.topic != truth]
-        trajectory = trajectory_use(info.path, truth, others)
+        trajectory = trajectory_use(info.path, truth, others, missing=[r for r in REQUIRED_ROLES if r not in found])
     return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators), map_truth, trajectory)
 
 

@@ -453,14 +453,16 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
 
 def detection_checks(prepared: PreparedLog) -> list[str]:
     """What the alignment and the detection pairs say of the detections, the odometry and the camera before any
-    estimator runs (the alignment's warnings, e.g. two tags sharing an id, and the checks riekf and batch make in a
-    run: a gyro misread, a camera extrinsic turned, a velocity axis scaled; ``time_offset.note``), one warning each;
-    none without the aligned streams."""
+    estimator runs (the alignment's warnings, e.g. two tags sharing an id; the tag stage's, e.g. a tag size other
+    than a tagslam.yaml states or a camera dropped, which ``info --noise --config`` did not show though a run warns;
+    and the checks riekf and batch make in a run: a gyro misread, a camera extrinsic turned, a velocity axis
+    scaled; ``time_offset.note``), one warning each; none without the aligned streams."""
     from slamobs.pipeline.observers import time_offset
 
     if prepared.aligned is None or prepared.aligned.det_y.shape[0] == 0:
         return []
-    said = [n for n in [*prepared.streams.warnings, *prepared.aligned.notes] if n.startswith("warning: ")]
+    tags = prepared.tags.notes if prepared.tags is not None else []
+    said = [n for n in [*prepared.streams.warnings, *prepared.aligned.notes, *tags] if n.startswith("warning: ")]
     return said + time_offset.note(None, time_offset.estimate(prepared.aligned))
 
 

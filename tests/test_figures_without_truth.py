@@ -547,3 +547,27 @@ def test_the_innovation_median_is_drawn_over_the_percentile_and_maximum(drawn_fi
     plots.plot_measurements(io.BytesIO(), t, np.ones_like(t), one)
     lines = {line.get_label(): line.get_zorder() for line in drawn_figures[0].axes[1].get_lines()}
     assert lines["median"] > lines["95th percentile"] > lines["maximum"], lines
+
+
+def test_a_bias_figure_says_what_its_shaded_stability_window_is(drawn_figures):
+    """Round 26 (h-newuser12): biases.png shades the report's stability window and named it "stability window" in
+    the legend, defined only in report.md's Method table. The top title says what it is, its share of the bias
+    time span where known, inside the figure; a figure without the window says nothing of it."""
+    import io
+
+    from slamobs.pipeline.evaluation import plots
+
+    t = np.linspace(0.0, 900.0, 500)
+    gyro, velocity = np.tile([0.0, 0.0, 0.005], (len(t), 1)), np.tile([0.00245, -0.00063, 0.0], (len(t), 1))
+    plots.plot_biases(io.BytesIO(), t, gyro, velocity, window_start_s=720.0)
+    plots.plot_biases(io.BytesIO(), t, gyro, velocity, window_start_s=720.0, window_fraction=0.2)
+    plots.plot_biases(io.BytesIO(), t, gyro, velocity)
+    (unknown, known, plain) = drawn_figures
+    said = unknown.axes[0].get_title()
+    assert "shaded: the stability window" in said and "report.md's mean, std, range and drift" in said, said
+    assert "the last 20 % of the bias time span" in known.axes[0].get_title()
+    renderer = known.canvas.get_renderer()
+    box = known.axes[0].title.get_window_extent(renderer)
+    width, height = known.bbox.width, known.bbox.height
+    assert box.x0 >= 0.0 and box.x1 <= width and box.y1 <= height, (box, width, height)
+    assert "stability" not in plain.axes[0].get_title()

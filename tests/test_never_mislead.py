@@ -84,8 +84,8 @@ def test_the_report_summary_says_the_turn_is_in_its_rpe_and_drift_lines(sim, tmp
     said = lines[first - 1]
     assert said.startswith("note         the truth's body frame looks turned against the estimate's by "), said
     assert said.endswith(
-        "so that turn is in them, translation and rotation: frames.body, or frames.truth_rotation "
-        "for the report, removes it."
+        "so that turn is in them, translation and rotation: frames.truth_rotation turns the truth for the report; "
+        "frames.truth: FRAME, where the truth is of a frame TF places on the body, carries it, lever arm too."
     ), said
     res = invoke(
         "report", tmp_path / "turned", "--truth", f"{sim['log']}:/mocap/pose"
@@ -226,6 +226,59 @@ def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words
     report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
     add_run_context(report, [], old)
     assert report["ape"]["truth_frame_turn"]["camera_named"] is True
+
+
+def test_the_turned_truth_sentence_names_only_a_key_that_removes_the_turn():
+    """Round 26 (h-newuser12): the sentence over the relative errors said "frames.body, or frames.truth_rotation for
+    the report, removes it" whatever the run's frames. On TagSLAM test_21 against its reference (an Odometry naming
+    the VIO frame 'basalt_pose_frame', holding the rig's poses) ``frames.body: rig`` carries the truth from that child
+    frame to the rig, the wrong way: rotation APE 178.7 deg as before; ``frames.truth: rig`` gives 1.96. The sentence
+    now goes by run.json's ``input`` (the run's frames): never ``frames.body``; ``frames.truth`` where the run carried
+    the truth from its child_frame_id or a base is placed on an odometry's frame; ``frames.truth_rotation`` alone
+    where the truth was carried from the stated frame (test_22 riekf with ``frames.truth: rig``: 42 deg left)."""
+    from slamobs.pipeline.evaluation.report import add_run_context
+    from slamobs.pipeline.evaluation.sections import relative_errors_turned
+
+    turn = {"angle_deg": 179.8, "axis": [0.0, 0.0, -1.0], "quat_xyzw": [0.0, 0.0, -1.0, 0.002]}
+    turn |= {"rotation_rmse_after_deg": 1.94, "path_m": 14.3}
+    placed = "static, from /tf_static or the cameras: files: turned 179.9 deg, offset 0.011 m"
+    odom = "the frame of /vio_node/odom's twist: an Odometry's child_frame_id or a TwistStamped's header frame"
+    runs = {  # test_21's run.json inputs: frames.body: rig alone; no frames key; frames.truth: rig on test_22
+        "body": {
+            "body_frame": "rig",
+            "body_frame_from": "frames.body",
+            "base_frame": None,
+            "truth_body": {"frame": "basalt_pose_frame", "from": "the truth's child_frame_id", "placed": placed},
+        },
+        "none": {
+            "body_frame": "basalt_pose_frame",
+            "body_frame_from": odom,
+            "base_frame": {"frame": "rig", "placed": placed},
+            "truth_body": None,
+        },
+        "truth": {
+            "body_frame": "camera_pose_frame",
+            "body_frame_from": odom,
+            "base_frame": {"frame": "rig", "placed": placed},
+            "truth_body": {"frame": "rig", "from": "frames.truth", "placed": placed},
+        },
+    }
+    said = {}
+    for name, run_input in runs.items():
+        report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
+        add_run_context(report, [], {"observer": {"name": "fast-adaptation"}, "input": run_input})
+        (said[name],) = relative_errors_turned(report["ape"]["truth_frame_turn"])
+        mend = said[name].split("translation and rotation: ", 1)[1]
+        assert "frames.body" not in mend or "frames.body does not" in mend, (name, mend)
+    assert "frames.truth: FRAME" in said["body"] and "'basalt_pose_frame'" in said["body"], said["body"]
+    assert "frames.truth: rig carries it to the body" in said["none"], said["none"]
+    assert said["truth"].endswith(
+        "frames.truth_rotation for the report removes it; the truth was carried from "
+        "frames.truth 'rig' already, so no frame key does."
+    ), said["truth"]
+    # the camera named: its own words, unchanged
+    report = {"ape": {"truth_frame_turn": dict(turn, camera_named=True)}, "notes": []}
+    assert "correct the camera's extrinsic" in relative_errors_turned(report["ape"]["truth_frame_turn"])[0]
 
 
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):
@@ -443,7 +496,7 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     assert report["uncertainty"]["position"]["mean"] > 100
     nees = [n for n in report["notes"] if n.startswith("position NEES ")]
     assert len(nees) == 1 and nees[0].endswith(
-        "judge the covariance once the frames agree (frames.body, or frames.truth_rotation for the report)"
+        "judge the covariance once the frames agree (report.md's note over the relative errors names the key)"
     ), report["notes"]
     body = [n for n in report["notes"] if n.startswith("the run took 'odom_sensor' as the body frame")]
     origin = "(the frame of /odom's twist: an Odometry's child_frame_id or a TwistStamped's header frame)"
@@ -465,7 +518,10 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
         f"Note: the truth's body frame looks turned against the estimate's by {turn['angle_deg']:.1f} deg (the note "
         "on the rotation APE); the relative errors below compare each trajectory's motion in its own body frame"
     ), relative[:300]
-    assert relative.split("\n", 1)[0].endswith("frames.body, or frames.truth_rotation for the report, removes it.")
+    assert relative.split("\n", 1)[0].endswith(
+        "if the truth is the base's (the body-frame note), frames.truth: base_link carries it to the body and removes "
+        "it; frames.truth_rotation turns it for the report."
+    )
     turned_rpe = report["rpe"]["translation_m"]["rmse"]
     # the same log with the body set: the truth is in the body's frame, no note of a turn, nor of the body
     fixed = tmp_path / "body.yaml"
@@ -784,6 +840,11 @@ def test_a_truth_of_a_frame_static_tf_places_on_the_body_is_carried_to_the_body(
     note = [n for n in wrong["notes"] if n.startswith("the truth is of the frame 'marker'")]
     assert len(note) == 1 and "the child_frame_id may not name the frame its poses are of" in note[0], wrong["notes"]
     assert not any("may not name" in n for r in ("odometry", "stated") for n in reports[r]["notes"])
+    # round 26: the sentence over the relative errors names frames.truth there, not frames.body (which carries the
+    # truth from the same child frame to the new body), and frames.truth: base_link below removes the turn
+    mend = wrong["ape"]["truth_frame_turn"]["mend"]
+    assert mend.startswith("frames.truth: FRAME") and "'marker'" in mend and "frames.body does not" in mend, mend
+    assert f"translation and rotation: {mend}." in (tmp_path / "mislabelled" / "report.md").read_text()
     stated = reports["mislabel_stated"]  # frames.truth: the body's own name compares it as it is
     assert stated["ape"]["translation_m"]["rmse"] == pytest.approx(base["translation_m"]["rmse"], rel=1e-6, abs=1e-9)
     assert stated["options"].get("truth_in_body") is None

@@ -854,3 +854,24 @@ def test_riekf_keeps_a_stated_velocity_level_a_coloured_odometry_earns(tmp_path)
     assert swapped and all(t["deviance_mean"] > rec["tried"][0]["deviance_mean"] for t in swapped), rec
     (note,) = [n for n in meta["notes"] if n.startswith("riekf: gyro at the stated") or n.startswith("riekf: velocity")]
     assert "velocity at the stated" in note and "no better by a likelihood-ratio test" in note, note
+
+
+def test_info_noise_with_a_config_says_the_tag_size_warning_a_run_gives(tmp_path):
+    """Round 26 (h-newuser12): `slamobs info --noise --config CFG LOG` on TagSLAM test_21 with ``tags.size: 0.16``
+    and its tagslam.yaml (tags 100-107 of 0.1 m) printed the noise levels and the camera warnings but not the size
+    warning the run gives (``landmarks._size_against_stated``): the tag stage's warnings are the run's, so info says
+    them too (``run.detection_checks``, its one list)."""
+    from slamobs.pipeline.readers import read_log
+
+    log = tmp_path / "corners.mcap"
+    res = invoke("simulate", "circle", "-o", log, "--duration", "6", "--camera", "corners", "--tag-size", "0.6", "-q")
+    assert res.exit_code == 0, res.output
+    ids = sorted({int(i) for s in read_log(log).tag_corners for i in s.ids})
+    listed = "".join(f"       - {{id: {i}, size: 0.3}}\n" for i in ids)
+    (tmp_path / "tagslam.yaml").write_text(f"bodies:\n - world:\n     is_static: true\n     tags:\n{listed}")
+    config = tmp_path / "run.yaml"
+    config.write_text(f"cameras: [{tmp_path / 'tagslam.yaml'}]\ntags:\n  size: 0.6\n")
+    shown = invoke("info", "--noise", "--config", config, log)
+    assert shown.exit_code == 0, shown.output
+    said = [line.strip() for line in shown.stdout.splitlines() if "tagslam.yaml states 0.3 m" in line]
+    assert len(said) == 1 and said[0].startswith("warning: ") and "the run gave them 0.6 m (tags.size)" in said[0]

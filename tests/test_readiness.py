@@ -468,3 +468,19 @@ def test_info_says_what_a_log_of_poses_only_is_good_for(logs, tmp_path):
     two = dataclasses.replace(info, topics=(*info.topics, other))
     assert readiness(two).trajectory == f"{said} (EST: e.g. {path}:/orb_slam/pose, another pose topic of this log)"
     assert readiness(inspect_log(logs["full"])).trajectory == ""
+
+
+def test_a_log_of_an_imu_and_its_truth_says_the_truth_is_a_trajectory_in_run_and_info(tmp_path):
+    """ETH's dataset.bag (round 26, h-newuser12): an IMU and a Vicon truth, no linear velocity. `run`'s error named
+    the missing roles but not what evo's ROS_example.bag is told, that its truth is a trajectory `slamobs evaluate`
+    measures another against, though the log runs no estimator either; `info` did not say it. One rule now
+    (``roles.trajectory_use``: a motion role missing), the same words in both."""
+    sim = simulate("circle", duration=4.0, seed=3)
+    imu = dataclasses.replace(sim, odom=_empty(sim.odom), detections=_empty(sim.detections))
+    path = write_log(imu, tmp_path / "imu.mcap")
+    info = inspect_log(path)
+    truth = info.roles["truth"]
+    said = f"its poses ({truth}) are a trajectory: `slamobs evaluate {path}:{truth} EST` measures another's error"
+    assert readiness(info).trajectory == said
+    run = invoke("run", path, "-o", tmp_path / "out")
+    assert run.exit_code == 2 and said in run.output, run.output

@@ -307,6 +307,7 @@ def bias_plot_job(section: dict[str, Any], biases: Table | None, t0: int):
             gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
             velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
             window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
+            window_fraction=None if not stab else stab.get("window_fraction"),
         ),
     )
 

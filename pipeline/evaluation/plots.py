@@ -366,6 +366,13 @@ def plot_errors(
     return _save(fig, path)
 
 
+#: what biases.png's grey band is, in its top title (report.md's bias section: BiasSection's Method words);
+#: ``{share}``: "the last 20 % of" where the fraction is known, else "the last stretch of"
+STABILITY_WINDOW_SAID = (
+    "shaded: the stability window, {share} the bias time span: report.md's mean, std, range and drift of each axis"
+)
+
+
 def plot_biases(
     path: Path,
     t_s: np.ndarray,
@@ -374,12 +381,18 @@ def plot_biases(
     gyro_truth: np.ndarray | None = None,
     velocity_truth: np.ndarray | None = None,
     window_start_s: float | None = None,
+    window_fraction: float | None = None,
 ) -> Path:
     """Bias estimate histories per axis; true values dashed in the same colour when known; the stability
-    window of the report shaded."""
+    window of the report (the last ``window_fraction`` of the bias time span, from ``window_start_s``) shaded, and
+    said in the figure: the top title gives the share and what the report measures over it (round 26:
+    a grey band named "stability window" and defined only in report.md's Method table)."""
     fig, axes = _figure(2, 1, (10.0, 6.5), right=1.45)  # the legends right of the axes
+    shaded = window_start_s is not None and len(t_s) > 0
+    share = f"the last {100.0 * window_fraction:.3g} % of" if window_fraction is not None else "the last stretch of"
+    gyro_title = "Gyro bias estimate" + (f"\n{STABILITY_WINDOW_SAID.format(share=share)}" if shaded else "")
     panels = (
-        (axes[0, 0], gyro, gyro_truth, "gyro bias b_Ω [rad/s]", "Gyro bias estimate"),
+        (axes[0, 0], gyro, gyro_truth, "gyro bias b_Ω [rad/s]", gyro_title),
         (axes[1, 0], velocity, velocity_truth, "velocity bias b_V [m/s]", "Velocity bias estimate"),
     )
     for ax, est, truth, ylabel, title in panels:
@@ -391,9 +404,9 @@ def plot_biases(
                 ax.plot(t_s[sel], est[sel, k], color=COLORS[k], lw=1.0, label=f"{AXES[k]} estimate")
             if truth is not None:
                 ax.axhline(float(truth[k]), color=COLORS[k], ls="--", lw=1.0, label=f"{AXES[k]} truth")
-        if window_start_s is not None and len(t_s):
+        if shaded:
             ax.axvspan(window_start_s, float(t_s[-1]), color="0.85", alpha=0.5, lw=0, label="stability window")
-        ax.set_title(title)
+        ax.set_title(title, fontsize=10 if "\n" in title else None)
         ax.set_ylabel(ylabel)
         ax.grid(True, alpha=0.3)
         if ax.get_legend_handles_labels()[0]:

@@ -564,16 +564,20 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     time window it kept, what the run's own status says beside the convergence (``convergence.own_status``:
     :func:`own_status`), and what to try next (``hints``: :func:`run_hints`); a note of the truth's body frame
     turned reads as the camera's when the run's notes name the camera's extrinsic
-    (:func:`.sections.camera_named_notes`); where the truth was carried from its own frame to the body
+    (:func:`.sections.camera_named_notes`), else its ``mend`` is what the run's frames say removes it
+    (:func:`.sections.turn_mend`); where the truth was carried from its own frame to the body
     (``options.truth_in_body``), the run's note saying so (``alignment.truth_body_note``). The same whether the
     report is made by ``slamobs run`` or again by ``slamobs report``."""
-    from slamobs.pipeline.evaluation.sections import body_frame_notes, camera_named_notes
+    from slamobs.pipeline.evaluation.sections import body_frame_notes, camera_named_notes, turn_mend
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
     run_notes = with_verdict_warnings(run_notes, report, metadata)
     if report.get("notes"):
         report["notes"] = camera_named_notes(report, metadata)
         report["notes"] += body_frame_notes(report, metadata.get("input") or {})
+    turn = (report.get("ape") or {}).get("truth_frame_turn")
+    if turn and not turn.get("camera_named"):  # what removes the turn, from the run's frames (one sentence's words)
+        turn["mend"] = turn_mend(metadata.get("input") or {})
     if report.get("ape") and (report.get("options") or {}).get("truth_in_body"):  # the truth carried to the body
         from slamobs.pipeline.alignment import truth_body_note
 

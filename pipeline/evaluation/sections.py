@@ -1661,6 +1661,46 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
     )
 
 
+#: what removes a turned truth where the run's frames say nothing more (:func:`turn_mend`)
+TURN_MEND = (
+    "frames.truth_rotation turns the truth for the report; frames.truth: FRAME, where the truth is of a frame TF "
+    "places on the body, carries it, lever arm too"
+)
+
+
+def turn_mend(run_input: dict[str, Any]) -> str:
+    """What removes a truth frame turned against the estimate's (``ape.truth_frame_turn``), from what the run knew of
+    its frames (run.json ``input``: ``truth_body``, ``body_frame_from``, ``base_frame``; report.json
+    ``truth_frame_turn.mend``, set by :func:`.report.add_run_context`). ``frames.body`` is offered nowhere: a truth
+    whose child_frame_id names the body's frame is then carried from it to the new body, the turn the wrong way
+    (TagSLAM test_21 against its reference with ``frames.body: rig``: rotation APE 178.7 deg, 1.96 with
+    ``frames.truth: rig``); ``frames.truth`` carries the truth to whichever body the run has. Where the run carried
+    the truth from its child_frame_id, that frame may not be its poses' (TagSLAM's reference names the odometry's
+    frame and holds the rig's); where a base frame is placed on a body taken from an odometry, the truth is most
+    likely the base's; where the truth was carried from the stated frame, only the report's turn is left (TagSLAM
+    test_22 riekf with ``frames.truth: rig``: 42 deg left, 35 deg with ``frames.body: rig`` beside it)."""
+    carried, base = run_input.get("truth_body") or {}, run_input.get("base_frame") or {}
+    from slamobs.pipeline.alignment import BODY_FROM_CONFIG, TRUTH_FRAME_FROM_MESSAGE
+
+    if carried.get("from") == TRUTH_FRAME_FROM_MESSAGE:
+        return (
+            f"frames.truth: FRAME, the frame the truth's poses are of (the run carried them from their "
+            f"child_frame_id '{carried['frame']}', which may name another: the note on the truth's frame), or "
+            "frames.truth_rotation for the report, removes it; frames.body does not (the truth is carried to the body)"
+        )
+    if carried:
+        return (
+            f"frames.truth_rotation for the report removes it; the truth was carried from frames.truth "
+            f"'{carried['frame']}' already, so no frame key does"
+        )
+    if base and run_input.get("body_frame_from") not in (None, BODY_FROM_CONFIG):
+        return (
+            f"if the truth is the base's (the body-frame note), frames.truth: {base['frame']} carries it to the body "
+            "and removes it; frames.truth_rotation turns it for the report"
+        )
+    return TURN_MEND
+
+
 def relative_errors_turned(turn: dict[str, Any] | None) -> list[str]:
     """The sentence over report.md's relative errors (RPE, drift, segment errors) once the APE section found the
     truth's body frame turned against the estimate's (``turn``: ``ape.truth_frame_turn``, :func:`truth_frame_turn`).
@@ -1673,7 +1713,7 @@ def relative_errors_turned(turn: dict[str, Any] | None) -> list[str]:
     mend = (
         "correct the camera's extrinsic (the note on the rotation APE names it) and run again"
         if turn.get("camera_named")
-        else "frames.body, or frames.truth_rotation for the report, removes it"
+        else turn.get("mend") or TURN_MEND
     )
     return [
         f"Note: {TRUTH_FRAME_TURNED} by {turn['angle_deg']:.1f} deg (the note on the rotation APE); the relative "
@@ -1696,8 +1736,8 @@ def nees_against_turned_truth(turn: dict[str, Any] | None, nees_notes: list[str]
         return nees_notes
     why = (
         f"; but {TRUTH_FRAME_TURNED} (the note on the rotation APE): this NEES holds the estimate against a truth in "
-        "another body frame, so that turn is in it: judge the covariance once the frames agree (frames.body, or "
-        "frames.truth_rotation for the report)"
+        "another body frame, so that turn is in it: judge the covariance once the frames agree (report.md's note "
+        "over the relative errors names the key)"
     )
     return [f"{n}{why}" if _NEES_NOTE.match(n) else n for n in nees_notes]
 

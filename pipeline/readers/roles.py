@@ -145,10 +145,18 @@ ROLE_ALTERNATIVES: dict[str, str] = {
 }
 
 
-def trajectory_use(path: str, topic: str, others: Iterable[str] = ()) -> str:
-    """What a log of poses without the velocities is good for (evo's example bags), in one wording for ``run``'s
-    error and ``info``'s readiness: its pose topic ``topic`` is a trajectory ``slamobs evaluate`` measures another
-    against; ``others``, the log's other pose topics, name one such estimate."""
+#: the motion roles: a log without either runs no estimator, and its truth is a trajectory to measure others against
+MOTION_ROLES = ("angular_velocity", "linear_velocity")
+
+
+def trajectory_use(path: str, topic: str, others: Iterable[str] = (), missing: Iterable[str] = MOTION_ROLES) -> str:
+    """What a log of poses without a velocity is good for (evo's example bags; ETH's dataset.bag, an IMU with no
+    linear velocity beside its Vicon truth, whose error did not say it, round 26), in one wording and one rule for
+    ``run``'s error and ``info``'s readiness: its pose topic ``topic`` is a trajectory ``slamobs evaluate`` measures
+    another against; ``others``, the log's other pose topics, name one such estimate. "" where the log has both
+    motion roles (``missing``: the required roles it lacks): it runs once its detections are given."""
+    if not set(MOTION_ROLES) & set(missing):
+        return ""
     first = next(iter(others), None)
     also = f" (EST: e.g. {path}:{first}, another pose topic of this log)" if first else ""
     return f"its poses ({topic}) are a trajectory: `slamobs evaluate {path}:{topic} EST` measures another's error{also}"
