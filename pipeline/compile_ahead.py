@@ -78,7 +78,11 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ("slamobs.pipeline.smoother.preintegration", "sample_poses", "f1 f2 f2 f1 f3 f2 f2 i1 f3 f2"),
         ("slamobs.pipeline.evaluation.sync", "_slerp_rows", "f2 f2 f1"),
     ),
-    "report": (("slamobs.pipeline.evaluation.rpe", "_consecutive_by_accumulation", "f1 f i1"),),
+    # report: the truth's spikes are found on its own poses' interpolation (``truth_spikes``) before anything else
+    "report": (
+        ("slamobs.pipeline.evaluation.sync", "_slerp_rows", "f2 f2 f1"),
+        ("slamobs.pipeline.evaluation.rpe", "_consecutive_by_accumulation", "f1 f i1"),
+    ),
 }
 
 #: How long a run waits for one kernel from the helper before compiling it itself (the longest, fast-adaptation's

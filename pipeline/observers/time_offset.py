@@ -1684,7 +1684,8 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         return [(_world_twist_sentence(offset, world) + stream_topics(topics, "odometry"), "it")]
     arm = lever_arm_sentence(offset)
     scale, lag = offset.get("velocity_scale"), offset.get("velocity_lag")
-    if arm is not None and not found:  # the rotations are the gyro's: only where it reads right (as world_twist)
+    arm_named = arm is not None and not found
+    if arm_named:  # the rotations are the gyro's: only where it reads right (as world_twist)
         found.append((arm, WHOLE_ESTIMATES[1], ("odometry", "detections", "camera")))
         # the lag and the scales the arm explains are not said (arm_explains); the scales are those fitted with it
         explained = arm_explains(offset)
@@ -1710,7 +1711,10 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         # none on a log of too few pairs (:func:`estimate` returns before its checks)
         for what, g in (_misread_axes(scale) if scale else [])
     ]
-    common = common_scale(scale) if scale and not _misread_axes(scale) else None
+    # with the arm named, a scale common to the axes is judged on the scales fitted with it: the arm moves the pairs
+    # as a scale does (a point 0.5 m beside a figure 8's body read without it as x 0.84)
+    judged = scale.get("with_arm") or scale if arm_named and scale else scale
+    common = common_scale(judged) if judged and not _misread_axes(scale) else None
     if common is not None:  # inside VELOCITY_SCALE_OFF on every axis, but every axis off alike
         found.append(
             (
