@@ -429,7 +429,8 @@ class BatchSmoother(Stepper):
             return out
 
         named = time_offset_named(self.time_offset)
-        problem, sol, rec, applied = ex.timed(problem, sol, np.asarray(sensor[1], float), again, named)
+        problem, sol, rec, applied, cpu_s = ex.timed(problem, sol, np.asarray(sensor[1], float), again, named)
+        self.timings["extrinsic_cpu_s"] = cpu_s
         if np.any(applied):
             self.stream = replace(
                 self.stream, det_y=self.stream.det_y + applied, det_sensor=(sensor[0], np.asarray(sensor[1]) + applied)

@@ -180,7 +180,7 @@ def turned(rhs: np.ndarray, cov6: np.ndarray, factor: float) -> dict:
     }
 
 
-def record(stated, shift, cov, judge: tuple, applied, cpu_s: float, turn: dict | None = None, vf: dict | None = None):
+def record(stated, shift, cov, judge: tuple, applied, turn: dict | None = None, vf: dict | None = None):
     """run.json ``smoother.extrinsic``: the fitted position, its marginal σ, the shift from the stated, the first
     step's observable directions, χ² and bound (the decision, :func:`judged`), what was applied; the turn's test
     (:func:`turned`) and the calibration (:func:`calibration`)."""
@@ -197,7 +197,6 @@ def record(stated, shift, cov, judge: tuple, applied, cpu_s: float, turn: dict |
         "beyond": beyond,
         "applied": bool(np.any(applied != 0.0)),
         "applied_shift_m": [round(float(v), 5) for v in applied],
-        "cpu_s": round(cpu_s, 3),
     }
     if vf is not None:
         out["variance_factor"] = round(vf["s0"], 4)
@@ -270,10 +269,12 @@ def note(rec: dict) -> list[str]:
 
 
 def timed(problem, sol, stated: np.ndarray, solve_again, named: bool = False):
-    """:func:`fitted` and its record: (problem, solution, record, the shift applied)."""
+    """:func:`fitted` and its record: (problem, solution, record, the shift applied, its CPU seconds). The seconds
+    stay out of the record (run.json's timings take them): a record of the data is the same on every run."""
     c0 = time.process_time()
     out = fitted(problem, sol, solve_again, stated, named)
     if out is None:
-        return problem, sol, {"skipped": "the normal matrix is singular at the solution"}, np.zeros(3)
+        rec = {"skipped": "the normal matrix is singular at the solution"}
+        return problem, sol, rec, np.zeros(3), time.process_time() - c0
     problem, sol, total, cov, judge, applied, turn, vf = out
-    return problem, sol, record(stated, total, cov, judge, applied, time.process_time() - c0, turn, vf), applied
+    return problem, sol, record(stated, total, cov, judge, applied, turn, vf), applied, time.process_time() - c0
